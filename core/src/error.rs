@@ -1,0 +1,204 @@
+//! Typed errors. Every variant names the offending element (vertex, triangle, edge or hinge) so a caller can
+//! point at it; none of them is ever replaced by a NaN or a panic.
+
+use thiserror::Error;
+
+/// Invalid mesh input: raised when a [`crate::TriMesh`] or a [`crate::Topology`] is built, or when a deformed
+/// state is paired with a rest mesh.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum MeshError {
+    /// The mesh has no vertices or no triangles.
+    #[error("empty mesh: {vertices} vertices and {triangles} triangles (at least one triangle is needed)")]
+    Empty {
+        /// Number of vertices given.
+        vertices: usize,
+        /// Number of triangles given.
+        triangles: usize,
+    },
+    /// A triangle refers to a vertex that does not exist.
+    #[error("triangle {triangle}: corner {corner} refers to vertex {index}, but the mesh has {n_vertices} vertices")]
+    IndexOutOfRange {
+        /// Triangle index.
+        triangle: usize,
+        /// Corner (0, 1 or 2) of the triangle.
+        corner: usize,
+        /// The offending vertex index.
+        index: usize,
+        /// Number of vertices of the mesh.
+        n_vertices: usize,
+    },
+    /// A triangle lists the same vertex twice.
+    #[error("triangle {triangle}: vertex {vertex} appears more than once")]
+    RepeatedVertex {
+        /// Triangle index.
+        triangle: usize,
+        /// The repeated vertex.
+        vertex: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("vertex {vertex}: coordinate {axis} is not finite ({value})")]
+    NonFiniteCoordinate {
+        /// Vertex index.
+        vertex: usize,
+        /// Axis 0 (x), 1 (y) or 2 (z).
+        axis: usize,
+        /// The offending value.
+        value: f64,
+    },
+    /// A triangle of the rest shape has (numerically) zero area: its vertices are colinear.
+    #[error("triangle {triangle} (vertices {vertices:?}) has zero area")]
+    ZeroAreaTriangle {
+        /// Triangle index.
+        triangle: usize,
+        /// Its three vertices.
+        vertices: [usize; 3],
+    },
+    /// An edge is shared by three or more triangles.
+    #[error("edge ({}, {}) is shared by {count} triangles (the first three are {triangles:?}); a manifold edge has at most two", edge[0], edge[1])]
+    NonManifoldEdge {
+        /// The edge's two vertices, smaller index first.
+        edge: [usize; 2],
+        /// How many triangles share it.
+        count: usize,
+        /// The first three of them.
+        triangles: [usize; 3],
+    },
+    /// Two triangles traverse their shared edge in the same direction.
+    #[error("triangles {} and {} traverse edge ({}, {}) in the same direction: the orientation is inconsistent", triangles[0], triangles[1], edge[0], edge[1])]
+    InconsistentOrientation {
+        /// The edge's two vertices, smaller index first.
+        edge: [usize; 2],
+        /// The two triangles.
+        triangles: [usize; 2],
+    },
+    /// Two triangles have the same three vertices.
+    #[error("triangles {} and {} have the same three vertices", triangles[0], triangles[1])]
+    DuplicateTriangle {
+        /// The two triangles.
+        triangles: [usize; 2],
+    },
+    /// A flat coordinate array whose length is not a multiple of 3.
+    #[error("a flat coordinate array has length {len}, which is not a multiple of 3")]
+    FlatLength {
+        /// Its length.
+        len: usize,
+    },
+    /// A deformed state does not have as many vertices as the rest mesh.
+    #[error("the rest mesh has {rest} vertices but the deformed state has {deformed}")]
+    VertexCountMismatch {
+        /// Vertices of the rest mesh.
+        rest: usize,
+        /// Vertices of the deformed state.
+        deformed: usize,
+    },
+}
+
+/// Which triangle of a hinge an error refers to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HingeSide {
+    /// T = (x0, x1, x2).
+    Upper,
+    /// T̃ = (x3, x2, x1).
+    Lower,
+}
+
+impl std::fmt::Display for HingeSide {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            HingeSide::Upper => "upper triangle (x0, x1, x2)",
+            HingeSide::Lower => "lower triangle (x3, x2, x1)",
+        })
+    }
+}
+
+/// A stencil on which the hinge-angle formulas are undefined (they would divide by zero).
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum StencilError {
+    /// A coordinate of the stencil is NaN or infinite.
+    #[error("stencil coordinate {coordinate} is not finite")]
+    NonFinite {
+        /// Index 0..12 of the coordinate (3·vertex + axis).
+        coordinate: usize,
+    },
+    /// The shared hinge edge x1–x2 has (numerically) zero length.
+    #[error("the hinge edge x1-x2 has zero length ({length:e})")]
+    ZeroLengthHingeEdge {
+        /// Its length.
+        length: f64,
+    },
+    /// A triangle's vertex lies on the line of its opposite edge: its altitude, and the normal, are undefined.
+    #[error("altitude collapse in the {side}: stencil vertex x{vertex} is colinear with its opposite edge (relative altitude {relative_altitude:e})")]
+    AltitudeCollapse {
+        /// Which triangle.
+        side: HingeSide,
+        /// The stencil vertex (0..4) whose altitude collapsed.
+        vertex: usize,
+        /// Smallest altitude over longest edge.
+        relative_altitude: f64,
+    },
+}
+
+/// A triangle on which per-triangle quantities are undefined.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+#[error("altitude collapse: corner {corner} is colinear with its opposite edge (relative altitude {relative_altitude:e})")]
+pub struct DegenerateTriangle {
+    /// The corner (0, 1 or 2) with the smallest altitude.
+    pub corner: usize,
+    /// Smallest altitude over longest edge.
+    pub relative_altitude: f64,
+}
+
+/// An evaluation on a whole mesh failed at a named element.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum EvalError {
+    /// The deformed state is not valid for the rest mesh.
+    #[error(transparent)]
+    Mesh(#[from] MeshError),
+    /// A hinge stencil is degenerate in the deformed state.
+    #[error("hinge {hinge} (edge {edge}, vertices {vertices:?}): {source}")]
+    Hinge {
+        /// Hinge index.
+        hinge: usize,
+        /// Edge index.
+        edge: usize,
+        /// The stencil's global vertices x0, x1, x2, x3.
+        vertices: [usize; 4],
+        /// What went wrong.
+        source: StencilError,
+    },
+}
+
+/// Reading or writing a Wavefront OBJ file failed.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum ObjError {
+    /// The file could not be opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// A line could not be parsed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// The file (or `<reader>`).
+        path: String,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        message: String,
+    },
+    /// The file parsed, but the mesh it describes is invalid.
+    #[error("{path}: {source}")]
+    Mesh {
+        /// The file.
+        path: String,
+        /// The mesh error.
+        source: MeshError,
+    },
+}

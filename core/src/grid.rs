@@ -1,0 +1,86 @@
+//! Rectangular grid meshes for scenes, tests and benchmarks.
+//!
+//! A grid of `nx × ny` cells has `(nx + 1)(ny + 1)` vertices; vertex `v = j (nx + 1) + i` (row `j` outer,
+//! column `i` inner) sits at `(i·w/nx, j·h/ny, 0)`. Each cell with corners `a = (i, j)`, `b = (i+1, j)`,
+//! `c = (i+1, j+1)`, `d = (i, j+1)` is split into two counter-clockwise triangles (normal +z) along the
+//! diagonal chosen by [`Diagonal`].
+
+use nalgebra::Vector3;
+
+use crate::error::MeshError;
+use crate::mesh::TriMesh;
+
+/// How each grid cell is split into two triangles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Diagonal {
+    /// Every cell split along a→c: triangles (a, b, c) and (a, c, d). This is the layout of the shared
+    /// reference data and of `hinge bench`.
+    #[default]
+    Forward,
+    /// Every cell split along b→d: triangles (a, b, d) and (b, c, d).
+    Backward,
+    /// Forward and backward cells alternate in a checkerboard (a "union jack" pattern): every interior
+    /// vertex has valence 4 or 8.
+    Alternating,
+}
+
+/// Builds a flat `nx × ny` grid of size `width × height` in the z = 0 plane.
+///
+/// # Errors
+/// [`MeshError::Empty`] when `nx` or `ny` is zero, [`MeshError::ZeroAreaTriangle`] for a zero or non-finite
+/// size.
+pub fn grid(nx: usize, ny: usize, width: f64, height: f64, diagonal: Diagonal) -> Result<TriMesh, MeshError> {
+    if nx == 0 || ny == 0 {
+        return Err(MeshError::Empty {
+            vertices: 0,
+            triangles: 0,
+        });
+    }
+    let mut positions = Vec::with_capacity((nx + 1) * (ny + 1));
+    for j in 0..=ny {
+        for i in 0..=nx {
+            positions.push(Vector3::new(
+                i as f64 / nx as f64 * width,
+                j as f64 / ny as f64 * height,
+                0.0,
+            ));
+        }
+    }
+    let mut triangles = Vec::with_capacity(2 * nx * ny);
+    for j in 0..ny {
+        for i in 0..nx {
+            let a = j * (nx + 1) + i;
+            let (b, c, d) = (a + 1, a + nx + 2, a + nx + 1);
+            let forward = match diagonal {
+                Diagonal::Forward => true,
+                Diagonal::Backward => false,
+                Diagonal::Alternating => (i + j) % 2 == 0,
+            };
+            if forward {
+                triangles.push([a, b, c]);
+                triangles.push([a, c, d]);
+            } else {
+                triangles.push([a, b, d]);
+                triangles.push([b, c, d]);
+            }
+        }
+    }
+    TriMesh::new(positions, triangles)
+}
+
+/// The unit-square grid of the shared reference data and of `hinge bench`: `n × n` cells on `[0, 1]²`,
+/// [`Diagonal::Forward`].
+///
+/// # Errors
+/// [`MeshError::Empty`] when `n` is zero.
+pub fn unit_grid(n: usize) -> Result<TriMesh, MeshError> {
+    grid(n, n, 1.0, 1.0, Diagonal::Forward)
+}
+
+/// The smooth test deformation of the reference data and of `hinge bench`: `(x, y, 0) ↦ (x, y,
+/// 0.1·sin(3x)·cos(2y))`.
+pub fn wave(rest: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    rest.iter()
+        .map(|p| Vector3::new(p.x, p.y, 0.1 * (3.0 * p.x).sin() * (2.0 * p.y).cos()))
+        .collect()
+}

@@ -1,0 +1,179 @@
+//! Triangle meshes: positions plus counter-clockwise vertex triples, validated on construction.
+
+use nalgebra::Vector3;
+
+use crate::error::MeshError;
+
+/// Relative size below which a triangle's altitude counts as collapsed: a triangle is degenerate when
+/// `2·area ≤ DEGENERACY_TOLERANCE · (longest edge)²`, i.e. its smallest altitude is below about
+/// `DEGENERACY_TOLERANCE` times its longest edge. At that size the unit normal computed from a cross
+/// product has lost all its digits, so no formula that needs it can be trusted.
+pub const DEGENERACY_TOLERANCE: f64 = 16.0 * f64::EPSILON;
+
+/// A triangle mesh: vertex positions and triangles given as counter-clockwise vertex triples.
+///
+/// [`TriMesh::new`] checks everything that does not depend on connectivity (indices, repeated vertices,
+/// finite coordinates, non-zero areas); [`crate::Topology::new`] checks the rest (manifold edges,
+/// consistent orientation).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TriMesh {
+    positions: Vec<Vector3<f64>>,
+    triangles: Vec<[usize; 3]>,
+}
+
+impl TriMesh {
+    /// Builds and validates a mesh.
+    ///
+    /// # Errors
+    /// [`MeshError::Empty`], [`MeshError::IndexOutOfRange`], [`MeshError::RepeatedVertex`],
+    /// [`MeshError::NonFiniteCoordinate`] or [`MeshError::ZeroAreaTriangle`], naming the first offending
+    /// element.
+    pub fn new(positions: Vec<Vector3<f64>>, triangles: Vec<[usize; 3]>) -> Result<Self, MeshError> {
+        validate_triangles(positions.len(), &triangles)?;
+        validate_positions(&positions)?;
+        for (t, tri) in triangles.iter().enumerate() {
+            let p = [positions[tri[0]], positions[tri[1]], positions[tri[2]]];
+            if is_degenerate(&p) {
+                return Err(MeshError::ZeroAreaTriangle {
+                    triangle: t,
+                    vertices: *tri,
+                });
+            }
+        }
+        Ok(Self {
+            positions,
+            triangles,
+        })
+    }
+
+    /// Builds a mesh from flat arrays: `3n` coordinates and triangles as `[u32; 3]`.
+    ///
+    /// # Errors
+    /// As [`TriMesh::new`], and [`MeshError::FlatLength`] when the coordinate count is not a multiple of 3.
+    pub fn from_flat(coordinates: &[f64], triangles: &[[u32; 3]]) -> Result<Self, MeshError> {
+        if coordinates.len() % 3 != 0 {
+            return Err(MeshError::FlatLength {
+                len: coordinates.len(),
+            });
+        }
+        let positions = coordinates
+            .chunks_exact(3)
+            .map(|c| Vector3::new(c[0], c[1], c[2]))
+            .collect();
+        let triangles = triangles
+            .iter()
+            .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
+            .collect();
+        Self::new(positions, triangles)
+    }
+
+    /// Vertex positions.
+    pub fn positions(&self) -> &[Vector3<f64>] {
+        &self.positions
+    }
+
+    /// Triangles, each counter-clockwise about its normal.
+    pub fn triangles(&self) -> &[[usize; 3]] {
+        &self.triangles
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Number of triangles.
+    pub fn n_triangles(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// The same connectivity with other positions (for example a deformed state), validated like
+    /// [`TriMesh::new`] plus a vertex-count check.
+    ///
+    /// # Errors
+    /// [`MeshError::VertexCountMismatch`] when the counts differ, otherwise as [`TriMesh::new`].
+    pub fn with_positions(&self, positions: Vec<Vector3<f64>>) -> Result<Self, MeshError> {
+        check_same_vertex_count(self.n_vertices(), positions.len())?;
+        Self::new(positions, self.triangles.clone())
+    }
+
+    /// Consumes the mesh, returning positions and triangles.
+    pub fn into_parts(self) -> (Vec<Vector3<f64>>, Vec<[usize; 3]>) {
+        (self.positions, self.triangles)
+    }
+}
+
+/// [`MeshError::VertexCountMismatch`] unless `deformed == rest`.
+pub fn check_same_vertex_count(rest: usize, deformed: usize) -> Result<(), MeshError> {
+    if rest == deformed {
+        Ok(())
+    } else {
+        Err(MeshError::VertexCountMismatch { rest, deformed })
+    }
+}
+
+/// Checks that positions are finite, naming the first offending vertex and axis.
+///
+/// # Errors
+/// [`MeshError::NonFiniteCoordinate`].
+pub fn validate_positions(positions: &[Vector3<f64>]) -> Result<(), MeshError> {
+    for (v, p) in positions.iter().enumerate() {
+        for axis in 0..3 {
+            if !p[axis].is_finite() {
+                return Err(MeshError::NonFiniteCoordinate {
+                    vertex: v,
+                    axis,
+                    value: p[axis],
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks the purely combinatorial conditions on a triangle list: non-empty, indices in range, no repeated
+/// vertex within a triangle.
+///
+/// # Errors
+/// [`MeshError::Empty`], [`MeshError::IndexOutOfRange`] or [`MeshError::RepeatedVertex`].
+pub fn validate_triangles(n_vertices: usize, triangles: &[[usize; 3]]) -> Result<(), MeshError> {
+    if n_vertices == 0 || triangles.is_empty() {
+        return Err(MeshError::Empty {
+            vertices: n_vertices,
+            triangles: triangles.len(),
+        });
+    }
+    for (t, tri) in triangles.iter().enumerate() {
+        for (corner, &index) in tri.iter().enumerate() {
+            if index >= n_vertices {
+                return Err(MeshError::IndexOutOfRange {
+                    triangle: t,
+                    corner,
+                    index,
+                    n_vertices,
+                });
+            }
+        }
+        for k in 0..3 {
+            if tri[k] == tri[(k + 1) % 3] {
+                return Err(MeshError::RepeatedVertex {
+                    triangle: t,
+                    vertex: tri[k],
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether a triangle's smallest altitude is below [`DEGENERACY_TOLERANCE`] times its longest edge.
+pub fn is_degenerate(p: &[Vector3<f64>; 3]) -> bool {
+    let e = [p[2] - p[1], p[0] - p[2], p[1] - p[0]];
+    let lmax2 = e
+        .iter()
+        .map(|v| v.norm_squared())
+        .fold(0.0_f64, f64::max);
+    let double_area = e[1].cross(&e[2]).norm();
+    // The negated comparison also catches NaN (a non-finite input).
+    !(double_area > DEGENERACY_TOLERANCE * lmax2)
+}

@@ -1,0 +1,120 @@
+//! Shared helpers for hinge's cross-crate tests: a seeded generator, random hinge stencils, finite
+//! differences and error metrics.
+#![deny(missing_docs)]
+
+use hinge_core::hinge::Stencil;
+use nalgebra::{Rotation3, Vector3};
+
+/// Unit roundoff of f64, 2⁻⁵³: errors are reported in multiples of it ("ulps").
+pub const UNIT_ROUNDOFF: f64 = f64::EPSILON / 2.0;
+
+/// SplitMix64, the generator of the shared reference data (shared/data/README.md).
+#[derive(Debug, Clone)]
+pub struct SplitMix64(pub u64);
+
+impl SplitMix64 {
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Uniform in [-1, 1), exactly as the reference data's jitter.
+    pub fn symmetric(&mut self) -> f64 {
+        self.unit() * 2.0 - 1.0
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+}
+
+/// The jittered wave deformation of the shared reference data for an `n × n` unit grid.
+pub fn reference_jitter(rest: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    let mut rng = SplitMix64(0x5EED);
+    rest.iter()
+        .map(|p| {
+            let (ux, uy, uz) = (rng.symmetric(), rng.symmetric(), rng.symmetric());
+            Vector3::new(
+                p.x + 1e-3 * ux,
+                p.y + 1e-3 * uy,
+                0.1 * (3.0 * p.x).sin() * (2.0 * p.y).cos() + 1e-3 * uz,
+            )
+        })
+        .collect()
+}
+
+/// A random non-degenerate stencil whose hinge angle is `theta` (up to rounding), in a random rigid frame.
+///
+/// The hinge edge has length in [0.5, 2]; the wing vertices sit at along-edge positions in [−0.3, 1.3] of the
+/// edge and at distances in [0.3, 1.5] from its line, so every altitude is bounded away from zero.
+pub fn random_stencil(rng: &mut SplitMix64, theta: f64) -> Stencil {
+    let len = rng.range(0.5, 2.0);
+    let s0 = rng.range(-0.3, 1.3) * len;
+    let s3 = rng.range(-0.3, 1.3) * len;
+    let r0 = rng.range(0.3, 1.5);
+    let r3 = rng.range(0.3, 1.5);
+    // x1 at the origin, x2 on +x. The upper wing at angle φ around the x axis, the lower wing at φ + π + θ
+    // (flat when θ = 0). Which sign of θ this produces is fixed by the convention; the caller only relies on
+    // |θ|, so the sign is randomised too.
+    let phi = rng.range(0.0, std::f64::consts::TAU);
+    let psi = phi + std::f64::consts::PI + theta;
+    let x1 = Vector3::zeros();
+    let x2 = Vector3::new(len, 0.0, 0.0);
+    let x0 = Vector3::new(s0, r0 * phi.cos(), r0 * phi.sin());
+    let x3 = Vector3::new(s3, r3 * psi.cos(), r3 * psi.sin());
+    let axis = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric());
+    let rot = Rotation3::new(axis * std::f64::consts::PI);
+    let shift = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 3.0;
+    let mut x = [x0, x1, x2, x3].map(|p| rot * p + shift);
+    // x1 → x2 must be counter-clockwise in (x0, x1, x2): if the construction produced the mirror image, swap
+    // x1 and x2 (which also keeps (x3, x2, x1) counter-clockwise about its own normal).
+    if rng.unit() < 0.5 {
+        x.swap(1, 2);
+    }
+    x
+}
+
+/// ‖a − b‖ / ‖b‖ over slices (normwise relative error); 0 when both are zero.
+pub fn rel_error(a: &[f64], b: &[f64]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt();
+    let den: f64 = b.iter().map(|y| y * y).sum::<f64>().sqrt();
+    if num == 0.0 { 0.0 } else { num / den }
+}
+
+/// Central finite difference of a scalar function of 12 coordinates: the gradient, step `h`.
+pub fn fd_gradient(f: impl Fn(&[f64; 12]) -> f64, x: &[f64; 12], h: f64) -> [f64; 12] {
+    let mut g = [0.0; 12];
+    for i in 0..12 {
+        let (mut xp, mut xm) = (*x, *x);
+        xp[i] += h;
+        xm[i] -= h;
+        g[i] = (f(&xp) - f(&xm)) / (2.0 * h);
+    }
+    g
+}
+
+/// Unflattens 12 coordinates into a stencil.
+pub fn stencil(x: &[f64; 12]) -> Stencil {
+    [0, 1, 2, 3].map(|v| Vector3::new(x[3 * v], x[3 * v + 1], x[3 * v + 2]))
+}
+
+/// Sorted copy; the `q`-quantile (0..=1) of a sample by nearest rank.
+pub fn quantile(sample: &[f64], q: f64) -> f64 {
+    let mut s = sample.to_vec();
+    s.sort_by(f64::total_cmp);
+    if s.is_empty() {
+        return f64::NAN;
+    }
+    let idx = ((s.len() - 1) as f64 * q).round() as usize;
+    s[idx]
+}
