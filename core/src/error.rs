@@ -9,7 +9,9 @@ use thiserror::Error;
 #[non_exhaustive]
 pub enum MeshError {
     /// The mesh has no vertices or no triangles.
-    #[error("empty mesh: {vertices} vertices and {triangles} triangles (at least one triangle is needed)")]
+    #[error(
+        "empty mesh: {vertices} vertices and {triangles} triangles (at least one triangle is needed)"
+    )]
     Empty {
         /// Number of vertices given.
         vertices: usize,
@@ -17,7 +19,9 @@ pub enum MeshError {
         triangles: usize,
     },
     /// A triangle refers to a vertex that does not exist.
-    #[error("triangle {triangle}: corner {corner} refers to vertex {index}, but the mesh has {n_vertices} vertices")]
+    #[error(
+        "triangle {triangle}: corner {corner} refers to vertex {index}, but the mesh has {n_vertices} vertices"
+    )]
     IndexOutOfRange {
         /// Triangle index.
         triangle: usize,
@@ -129,7 +133,9 @@ pub enum StencilError {
         length: f64,
     },
     /// A triangle's vertex lies on the line of its opposite edge: its altitude, and the normal, are undefined.
-    #[error("altitude collapse in the {side}: stencil vertex x{vertex} is colinear with its opposite edge (relative altitude {relative_altitude:e})")]
+    #[error(
+        "altitude collapse in the {side}: stencil vertex x{vertex} is colinear with its opposite edge (relative altitude {relative_altitude:e})"
+    )]
     AltitudeCollapse {
         /// Which triangle.
         side: HingeSide,
@@ -142,7 +148,9 @@ pub enum StencilError {
 
 /// A triangle on which per-triangle quantities are undefined.
 #[derive(Debug, Clone, Copy, PartialEq, Error)]
-#[error("altitude collapse: corner {corner} is colinear with its opposite edge (relative altitude {relative_altitude:e})")]
+#[error(
+    "altitude collapse: corner {corner} is colinear with its opposite edge (relative altitude {relative_altitude:e})"
+)]
 pub struct DegenerateTriangle {
     /// The corner (0, 1 or 2) with the smallest altitude.
     pub corner: usize,

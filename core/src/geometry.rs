@@ -47,9 +47,17 @@ impl TriangleFrame {
     /// [`DegenerateTriangle`] when `2A ≤ DEGENERACY_TOLERANCE · l_max²` (an altitude has collapsed; this
     /// includes a zero-length edge and non-finite input), naming the corner with the smallest altitude.
     #[inline]
-    pub fn new(p0: &Vector3<f64>, p1: &Vector3<f64>, p2: &Vector3<f64>) -> Result<Self, DegenerateTriangle> {
+    pub fn new(
+        p0: &Vector3<f64>,
+        p1: &Vector3<f64>,
+        p2: &Vector3<f64>,
+    ) -> Result<Self, DegenerateTriangle> {
         let e = [p2 - p1, p0 - p2, p1 - p0];
-        let len_sq = [e[0].norm_squared(), e[1].norm_squared(), e[2].norm_squared()];
+        let len_sq = [
+            e[0].norm_squared(),
+            e[1].norm_squared(),
+            e[2].norm_squared(),
+        ];
         let cross = e[1].cross(&e[2]);
         let double_area = cross.norm();
         let lmax_sq = len_sq[0].max(len_sq[1]).max(len_sq[2]);

@@ -29,7 +29,13 @@ pub enum Diagonal {
 /// # Errors
 /// [`MeshError::Empty`] when `nx` or `ny` is zero, [`MeshError::ZeroAreaTriangle`] for a zero or non-finite
 /// size.
-pub fn grid(nx: usize, ny: usize, width: f64, height: f64, diagonal: Diagonal) -> Result<TriMesh, MeshError> {
+pub fn grid(
+    nx: usize,
+    ny: usize,
+    width: f64,
+    height: f64,
+    diagonal: Diagonal,
+) -> Result<TriMesh, MeshError> {
     if nx == 0 || ny == 0 {
         return Err(MeshError::Empty {
             vertices: 0,

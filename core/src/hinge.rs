@@ -112,15 +112,21 @@ impl HingeFrames {
                 length: hinge_len_sq.sqrt(),
             });
         }
-        let upper = TriangleFrame::new(&x[0], &x[1], &x[2]).map_err(|e| collapse(HingeSide::Upper, e))?;
-        let lower = TriangleFrame::new(&x[3], &x[2], &x[1]).map_err(|e| collapse(HingeSide::Lower, e))?;
+        let upper =
+            TriangleFrame::new(&x[0], &x[1], &x[2]).map_err(|e| collapse(HingeSide::Upper, e))?;
+        let lower =
+            TriangleFrame::new(&x[3], &x[2], &x[1]).map_err(|e| collapse(HingeSide::Lower, e))?;
         Ok(Self { upper, lower })
     }
 
     /// θ from the two normals (module docs).
     #[inline]
     pub fn theta(&self) -> f64 {
-        signed_angle(&self.upper.normal, &self.lower.normal, &self.upper.unit_edge[0])
+        signed_angle(
+            &self.upper.normal,
+            &self.lower.normal,
+            &self.upper.unit_edge[0],
+        )
     }
 
     /// ∇θ by Eq. 4, as the four 3-vectors `∇x0 θ … ∇x3 θ`.
@@ -204,7 +210,9 @@ pub fn hinge_angle_hessian(x: &Stencil) -> Result<HingeAngleDerivatives, Stencil
             };
             hessian.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
             if a != b {
-                hessian.fixed_view_mut::<3, 3>(3 * b, 3 * a).copy_from(&blk.transpose());
+                hessian
+                    .fixed_view_mut::<3, 3>(3 * b, 3 * a)
+                    .copy_from(&blk.transpose());
             }
         }
     }

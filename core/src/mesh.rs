@@ -28,7 +28,10 @@ impl TriMesh {
     /// [`MeshError::Empty`], [`MeshError::IndexOutOfRange`], [`MeshError::RepeatedVertex`],
     /// [`MeshError::NonFiniteCoordinate`] or [`MeshError::ZeroAreaTriangle`], naming the first offending
     /// element.
-    pub fn new(positions: Vec<Vector3<f64>>, triangles: Vec<[usize; 3]>) -> Result<Self, MeshError> {
+    pub fn new(
+        positions: Vec<Vector3<f64>>,
+        triangles: Vec<[usize; 3]>,
+    ) -> Result<Self, MeshError> {
         validate_triangles(positions.len(), &triangles)?;
         validate_positions(&positions)?;
         for (t, tri) in triangles.iter().enumerate() {
@@ -169,10 +172,7 @@ pub fn validate_triangles(n_vertices: usize, triangles: &[[usize; 3]]) -> Result
 /// Whether a triangle's smallest altitude is below [`DEGENERACY_TOLERANCE`] times its longest edge.
 pub fn is_degenerate(p: &[Vector3<f64>; 3]) -> bool {
     let e = [p[2] - p[1], p[0] - p[2], p[1] - p[0]];
-    let lmax2 = e
-        .iter()
-        .map(|v| v.norm_squared())
-        .fold(0.0_f64, f64::max);
+    let lmax2 = e.iter().map(|v| v.norm_squared()).fold(0.0_f64, f64::max);
     let double_area = e[1].cross(&e[2]).norm();
     // The negated comparison also catches NaN (a non-finite input).
     !(double_area > DEGENERACY_TOLERANCE * lmax2)

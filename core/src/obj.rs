@@ -53,9 +53,12 @@ pub fn parse_obj(reader: impl BufRead, name: &str) -> Result<TriMesh, ObjError> 
             Some("v") => {
                 let mut c = [0.0; 3];
                 for (axis, slot) in c.iter_mut().enumerate() {
-                    let w = words
-                        .next()
-                        .ok_or_else(|| parse_err(format!("vertex has fewer than 3 coordinates (missing {})", ["x", "y", "z"][axis])))?;
+                    let w = words.next().ok_or_else(|| {
+                        parse_err(format!(
+                            "vertex has fewer than 3 coordinates (missing {})",
+                            ["x", "y", "z"][axis]
+                        ))
+                    })?;
                     *slot = w
                         .parse::<f64>()
                         .map_err(|_| parse_err(format!("cannot parse coordinate `{w}`")))?;
@@ -106,7 +109,11 @@ pub fn parse_obj(reader: impl BufRead, name: &str) -> Result<TriMesh, ObjError> 
 ///
 /// # Errors
 /// The writer's I/O error.
-pub fn write_obj_to(mut out: impl Write, positions: &[Vector3<f64>], triangles: &[[usize; 3]]) -> std::io::Result<()> {
+pub fn write_obj_to(
+    mut out: impl Write,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+) -> std::io::Result<()> {
     for p in positions {
         writeln!(out, "v {:.17e} {:.17e} {:.17e}", p.x, p.y, p.z)?;
     }
@@ -120,7 +127,11 @@ pub fn write_obj_to(mut out: impl Write, positions: &[Vector3<f64>], triangles: 
 ///
 /// # Errors
 /// [`ObjError::Io`].
-pub fn write_obj(path: impl AsRef<Path>, positions: &[Vector3<f64>], triangles: &[[usize; 3]]) -> Result<(), ObjError> {
+pub fn write_obj(
+    path: impl AsRef<Path>,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+) -> Result<(), ObjError> {
     let path = path.as_ref();
     let io = |source| ObjError::Io {
         path: path.display().to_string(),

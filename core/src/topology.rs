@@ -244,7 +244,10 @@ impl Topology {
 
     /// The hinge on edge `edge`, if the edge is interior.
     pub fn hinge_of_edge(&self, edge: usize) -> Option<usize> {
-        self.edge_hinge.get(edge).copied().filter(|&h| h != usize::MAX)
+        self.edge_hinge
+            .get(edge)
+            .copied()
+            .filter(|&h| h != usize::MAX)
     }
 
     /// Number of boundary edges.

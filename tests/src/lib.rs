@@ -86,7 +86,12 @@ pub fn random_stencil(rng: &mut SplitMix64, theta: f64) -> Stencil {
 
 /// ‖a − b‖ / ‖b‖ over slices (normwise relative error); 0 when both are zero.
 pub fn rel_error(a: &[f64], b: &[f64]) -> f64 {
-    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt();
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f64>()
+        .sqrt();
     let den: f64 = b.iter().map(|y| y * y).sum::<f64>().sqrt();
     if num == 0.0 { 0.0 } else { num / den }
 }

@@ -4,7 +4,9 @@
 
 use hinge_core::StencilError;
 use hinge_core::autodiff::{flatten, hinge_angle_autodiff, hinge_angle_generic};
-use hinge_core::hinge::{HingeAngleDerivatives, hinge_angle, hinge_angle_gradient, hinge_angle_hessian, tan_half_angle};
+use hinge_core::hinge::{
+    HingeAngleDerivatives, hinge_angle, hinge_angle_gradient, hinge_angle_hessian, tan_half_angle,
+};
 use hinge_tests::*;
 use nalgebra::{Rotation3, Vector3};
 use std::f64::consts::PI;
@@ -40,7 +42,10 @@ fn sample() -> Vec<(f64, hinge_core::hinge::Stencil)> {
 
 fn summary(name: &str, e: &[f64]) -> f64 {
     let (med, p99, max) = (quantile(e, 0.5), quantile(e, 0.99), quantile(e, 1.0));
-    println!("{name}: median {med:.3e} p99 {p99:.3e} max {max:.3e} over {} hinges", e.len());
+    println!(
+        "{name}: median {med:.3e} p99 {p99:.3e} max {max:.3e} over {} hinges",
+        e.len()
+    );
     max
 }
 
@@ -53,15 +58,27 @@ fn closed_form_matches_autodiff_on_random_hinges() {
         let cf = hinge_angle_hessian(&x).unwrap();
         let ad = hinge_angle_autodiff(&x).unwrap();
         // Same angle (absolute error: θ's condition number is 1/|θ|-free), and the construction's |θ|.
-        assert!((cf.theta - ad.theta).abs() < 1e-14, "{} vs {}", cf.theta, ad.theta);
-        assert!((cf.theta.abs() - target.abs()).abs() < 1e-9, "{} vs target {target}", cf.theta);
+        assert!(
+            (cf.theta - ad.theta).abs() < 1e-14,
+            "{} vs {}",
+            cf.theta,
+            ad.theta
+        );
+        assert!(
+            (cf.theta.abs() - target.abs()).abs() < 1e-9,
+            "{} vs target {target}",
+            cf.theta
+        );
         max_abs_theta = max_abs_theta.max(cf.theta.abs());
         near_zero += usize::from(cf.theta.abs() < 1e-6);
         eg.push(rel_error(cf.gradient.as_slice(), ad.gradient.as_slice()) / UNIT_ROUNDOFF);
         eh.push(rel_error(cf.hessian.as_slice(), ad.hessian.as_slice()) / UNIT_ROUNDOFF);
     }
     println!("max |theta| = {max_abs_theta}, {near_zero} hinges with |theta| < 1e-6");
-    assert!(max_abs_theta > PI - 1e-3, "the sample must reach |θ| close to π");
+    assert!(
+        max_abs_theta > PI - 1e-3,
+        "the sample must reach |θ| close to π"
+    );
     assert!(near_zero > 1000, "the sample must include θ near 0");
     let g = summary("gradient closed form vs num-dual (ulps)", &eg);
     let h = summary("hessian closed form vs num-dual (ulps)", &eh);
@@ -135,14 +152,21 @@ fn tan_half_angle_by_eq12_matches_theta() {
         let t = tan_half_angle(&x).unwrap();
         // Compare the angles: 2·atan(tan(θ/2)) is well conditioned everywhere.
         let back = 2.0 * t.atan();
-        assert!((back - theta).abs() < 1e-13 * (1.0 + theta.abs()), "{back} vs {theta}");
+        assert!(
+            (back - theta).abs() < 1e-13 * (1.0 + theta.abs()),
+            "{back} vs {theta}"
+        );
     }
 }
 
 fn sym_check(d: &HingeAngleDerivatives) {
     for i in 0..12 {
         for j in 0..12 {
-            assert_eq!(d.hessian[(i, j)].to_bits(), d.hessian[(j, i)].to_bits(), "H[{i},{j}]");
+            assert_eq!(
+                d.hessian[(i, j)].to_bits(),
+                d.hessian[(j, i)].to_bits(),
+                "H[{i},{j}]"
+            );
         }
     }
 }
@@ -185,17 +209,25 @@ fn rigid_motion_and_uniform_scaling() {
     let mut rng = SplitMix64(9);
     for (_, x) in sample().into_iter().take(2000) {
         let d = hinge_angle_hessian(&x).unwrap();
-        let rot = Rotation3::new(Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 2.0);
+        let rot =
+            Rotation3::new(Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 2.0);
         let shift = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 10.0;
         let moved = x.map(|p| rot * p + shift);
         let dm = hinge_angle_hessian(&moved).unwrap();
-        assert!((dm.theta - d.theta).abs() < 1e-12, "{} vs {}", dm.theta, d.theta);
+        assert!(
+            (dm.theta - d.theta).abs() < 1e-12,
+            "{} vs {}",
+            dm.theta,
+            d.theta
+        );
         // ∇θ rotates with the mesh, Hess θ as R H Rᵀ block by block.
         let mut g_rot = d.gradient;
         let mut h_rot = d.hessian;
         let r = rot.matrix();
         for a in 0..4 {
-            g_rot.fixed_rows_mut::<3>(3 * a).copy_from(&(r * d.gradient.fixed_rows::<3>(3 * a)));
+            g_rot
+                .fixed_rows_mut::<3>(3 * a)
+                .copy_from(&(r * d.gradient.fixed_rows::<3>(3 * a)));
             for b in 0..4 {
                 let blk = r * d.hessian.fixed_view::<3, 3>(3 * a, 3 * b) * r.transpose();
                 h_rot.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
@@ -248,12 +280,21 @@ fn degenerate_stencils_give_typed_errors() {
     // A collapsed hinge edge.
     let mut x = good;
     x[2] = x[1];
-    assert!(matches!(hinge_angle(&x), Err(StencilError::ZeroLengthHingeEdge { .. })));
+    assert!(matches!(
+        hinge_angle(&x),
+        Err(StencilError::ZeroLengthHingeEdge { .. })
+    ));
     // Non-finite input, and the autodiff path rejects the same stencils.
     let mut x = good;
     x[2].y = f64::NAN;
-    assert!(matches!(hinge_angle_hessian(&x), Err(StencilError::NonFinite { coordinate: 7 })));
-    assert!(matches!(hinge_angle_autodiff(&x), Err(StencilError::NonFinite { coordinate: 7 })));
+    assert!(matches!(
+        hinge_angle_hessian(&x),
+        Err(StencilError::NonFinite { coordinate: 7 })
+    ));
+    assert!(matches!(
+        hinge_angle_autodiff(&x),
+        Err(StencilError::NonFinite { coordinate: 7 })
+    ));
     assert!(tan_half_angle(&x).is_err());
     // Nearly degenerate (relative altitude 1e-12) is still evaluated, and finite.
     let mut x = good;
