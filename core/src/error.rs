@@ -177,6 +177,16 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// ψ, ψ′ or ψ″ is not finite at a hinge (for example the tan energy at θ = ±π).
+    #[error("hinge {hinge} (vertices {vertices:?}): the energy is not finite at θ = {theta}")]
+    NonFiniteEnergy {
+        /// Hinge index.
+        hinge: usize,
+        /// The stencil's global vertices x0, x1, x2, x3.
+        vertices: [usize; 4],
+        /// The hinge angle there.
+        theta: f64,
+    },
 }
 
 /// Reading or writing a Wavefront OBJ file failed.

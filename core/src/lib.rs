@@ -26,12 +26,15 @@
 #![deny(missing_docs)]
 
 pub mod autodiff;
+pub mod bending;
 pub mod error;
 pub mod geometry;
 pub mod grid;
 pub mod hinge;
 pub mod mesh;
 pub mod obj;
+pub mod pattern;
+pub mod psi;
 pub mod topology;
 
 pub use error::{DegenerateTriangle, EvalError, HingeSide, MeshError, ObjError, StencilError};

@@ -123,3 +123,29 @@ pub fn quantile(sample: &[f64], q: f64) -> f64 {
     let idx = ((s.len() - 1) as f64 * q).round() as usize;
     s[idx]
 }
+
+/// Frobenius norm of the full symmetric matrix from its lower-triangle CSC storage.
+pub fn sym_frobenius(col_ptr: &[usize], row_idx: &[usize], values: &[f64]) -> f64 {
+    let mut s = 0.0;
+    for c in 0..col_ptr.len() - 1 {
+        for k in col_ptr[c]..col_ptr[c + 1] {
+            let w = if row_idx[k] == c { 1.0 } else { 2.0 };
+            s += w * values[k] * values[k];
+        }
+    }
+    s.sqrt()
+}
+
+/// Dense full symmetric matrix (row-major `n × n`) from lower-triangle CSC storage.
+pub fn sym_dense(col_ptr: &[usize], row_idx: &[usize], values: &[f64]) -> Vec<f64> {
+    let n = col_ptr.len() - 1;
+    let mut d = vec![0.0; n * n];
+    for c in 0..n {
+        for k in col_ptr[c]..col_ptr[c + 1] {
+            let r = row_idx[k];
+            d[r * n + c] = values[k];
+            d[c * n + r] = values[k];
+        }
+    }
+    d
+}

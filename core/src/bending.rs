@@ -1,0 +1,846 @@
+//! The assembly engine for hinge energies: energy, gradient and the exact sparse Hessian of
+//! `E = Σ_hinges ψ_h(θ_h)` by one of three interchangeable [`Method`]s.
+//!
+//! # Methods
+//! - [`Method::Refactored`] — the triangle-refactored Hessian (paper Eq. 7, §4.1–4.2). Per triangle with
+//!   corners 0, 1, 2 (edge `i` opposite corner `i`, σ_i = 1 on interior edges):
+//!   ```text
+//!   c_i = σ_i ψ′_i,   d_i = c_{i−1} cos α_{i+1} + c_{i+1} cos α_{i−1} − c_i,   R_i = c_i N_i
+//!   H^Δ_ii     = ω_ii (d_i M_iᵀ + d_i M_i) − R_{i+1} − R_{i+2}
+//!   H^Δ_i,i+1  = ω_i,i+1 (d_i M_{i+1}ᵀ + d_{i+1} M_i) + R_{i+2}^†
+//!   ```
+//!   with `M_i = n m_iᵀ`, `N_i = M_i / l_i²`, `ω_ij = 1/(h_i h_j)`. The conditional transpose † applies in
+//!   exactly one triangle of each interior edge: the lower triangle T̃ of its hinge (see [`crate::topology`]).
+//!   Summed over triangles this is `Σ_h ψ′_h Hess θ_h`. Each hinge's `ψ″ ∇θ ∇θᵀ` is given to its upper
+//!   triangle T, whose three corners are the hinge's x0, x1, x2: those six blocks fold into the triangle's own
+//!   blocks, and only the four blocks of x3 are extra (the paper's 6F + 4E block writes).
+//! - [`Method::PerHinge`] — Eqs. 4–6 per hinge: one 12×12 Hessian `ψ′ Hess θ + ψ″ ∇θ∇θᵀ` per hinge,
+//!   scattered as 10 blocks. Same assembly path as `Refactored`.
+//! - [`Method::Autodiff`] — num-dual's second-order duals over the 12 stencil coordinates with ψ included
+//!   (`ψ(θ(x))` through [`crate::psi::HingePsi::psi_dual`]). Slow: the baseline and a cross-check.
+//!
+//! # Passes and determinism
+//! 1. Per hinge (parallel, each hinge writes its own record): θ, ψ, ψ′, ψ″ and ∇θ.
+//! 2. Per partition (parallel): the vertices are split into contiguous ranges fixed at set-up. A range owns
+//!    the gradient entries of its vertices and the Hessian block columns of its vertices (contiguous in the
+//!    CSC value array), zeroes them, then visits — in increasing element order — every element (triangle or
+//!    hinge) touching one of its vertices, adding only what it owns.
+//!
+//! Every value slot thus receives its contributions in increasing element order whatever the number of
+//! threads or partitions: results are bitwise identical for any thread count. Nothing allocates, sorts or
+//! searches during an evaluation; unrequested outputs are not computed.
+
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use num_dual::{Dual2SVec64, hessian};
+use rayon::prelude::*;
+
+use crate::autodiff::{flatten, hinge_angle_generic};
+use crate::error::{EvalError, MeshError};
+use crate::geometry::TriangleFrame;
+use crate::hinge::{HingeFrames, Stencil, hessian_blocks};
+use crate::mesh::{TriMesh, check_same_vertex_count};
+use crate::pattern::SymmetricPattern;
+use crate::psi::{HingePsi, RestHinge};
+use crate::topology::Topology;
+
+/// How the bending Hessian is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Triangle-refactored (paper Eq. 7): the fast default.
+    Refactored,
+    /// Per-hinge closed form (Eqs. 4–6).
+    PerHinge,
+    /// num-dual automatic differentiation over the 12 stencil coordinates.
+    Autodiff,
+}
+
+impl Method {
+    /// All methods.
+    pub const ALL: [Method; 3] = [Method::Refactored, Method::PerHinge, Method::Autodiff];
+
+    /// The name used on the command line: `refactored`, `per_hinge`, `autodiff`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Refactored => "refactored",
+            Method::PerHinge => "per_hinge",
+            Method::Autodiff => "autodiff",
+        }
+    }
+
+    /// Parses [`Method::name`].
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == s)
+    }
+}
+
+/// What an evaluation computes; nothing else is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Request {
+    /// The energy.
+    pub value: bool,
+    /// The gradient (forces are its negative).
+    pub gradient: bool,
+    /// The Hessian values (in the pattern of [`BendingModel::pattern`]).
+    pub hessian: bool,
+}
+
+impl Request {
+    /// Energy, gradient and Hessian.
+    pub const ALL: Request = Request {
+        value: true,
+        gradient: true,
+        hessian: true,
+    };
+    /// Energy only.
+    pub const VALUE: Request = Request {
+        value: true,
+        gradient: false,
+        hessian: false,
+    };
+    /// Energy and gradient.
+    pub const GRADIENT: Request = Request {
+        value: true,
+        gradient: true,
+        hessian: false,
+    };
+}
+
+/// Where the work runs. With [`Parallelism::Rayon`] the passes run on the current rayon pool: call
+/// [`BendingModel::evaluate`] inside `pool.install(..)` to choose the thread count. Results are bitwise
+/// identical either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Parallelism {
+    /// On the calling thread.
+    Sequential,
+    /// On the current rayon thread pool.
+    Rayon,
+}
+
+/// Output buffers of an evaluation, allocated once by [`BendingModel::new_output`] and reused.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    /// The energy (0 when not requested).
+    pub energy: f64,
+    /// The gradient, `3n` entries `x0, y0, z0, x1, …` (untouched when not requested).
+    pub gradient: Vec<f64>,
+    /// Hessian values of the lower triangle in [`BendingModel::pattern`]'s CSC order (untouched when not
+    /// requested).
+    pub hessian: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct HingeState {
+    psi: f64,
+    dpsi: f64,
+    d2psi: f64,
+    grad: [Vector3<f64>; 4],
+}
+
+const NONE: u32 = u32::MAX;
+
+/// A hinge energy bound to a mesh: rest data, per-hinge parameters, the sparsity pattern, per-element slots
+/// and the partition of the work, all computed once.
+#[derive(Debug, Clone)]
+pub struct BendingModel<P: HingePsi> {
+    psi: P,
+    topology: Topology,
+    rest: Vec<RestHinge>,
+    params: Vec<P::Params>,
+    pattern: SymmetricPattern,
+    /// Triangles with at least one interior edge (the refactored elements).
+    tri_elements: Vec<u32>,
+    /// Per refactored element: 6 own block slots (00, 11, 22, 01, 12, 20 by corner) and 4 x3 slots for each
+    /// corner whose edge is the element's assigned hinge (x3x3, x3x0, x3x1, x3x2).
+    tri_slots: Vec<[u32; 18]>,
+    /// Per hinge: 10 block slots (00, 11, 22, 33, 10, 20, 30, 21, 31, 32).
+    hinge_slots: Vec<[u32; 10]>,
+    /// Hinge index of each edge (NONE on the boundary).
+    edge_hinge: Vec<u32>,
+    partitions: Vec<Partition>,
+}
+
+#[derive(Debug, Clone)]
+struct Partition {
+    vertices: std::ops::Range<usize>,
+    values: std::ops::Range<usize>,
+    /// Indices into `tri_elements`.
+    tris: Vec<u32>,
+    hinges: Vec<u32>,
+}
+
+/// Vertices per partition: small enough for load balance on a few cores, large enough that elements
+/// straddling two partitions (computed by both) are rare.
+const PARTITION_VERTICES: usize = 2048;
+
+impl<P: HingePsi> BendingModel<P> {
+    /// Binds `psi` to a rest mesh: builds the topology, the rest quantities of every hinge (θ̄, a, rest length,
+    /// rest area), the parameters, the pattern and the slots.
+    ///
+    /// # Errors
+    /// [`EvalError::Mesh`] for an invalid mesh, [`EvalError::Hinge`] for a degenerate rest stencil.
+    pub fn new(rest: &TriMesh, psi: P) -> Result<Self, EvalError> {
+        let topology = Topology::new(rest.n_vertices(), rest.triangles())?;
+        let x = rest.positions();
+        let mut rest_h = Vec::with_capacity(topology.hinges().len());
+        for (i, h) in topology.hinges().iter().enumerate() {
+            let s: Stencil = h.vertices.map(|v| x[v]);
+            let f = HingeFrames::new(&s).map_err(|source| EvalError::Hinge {
+                hinge: i,
+                edge: h.edge,
+                vertices: h.vertices,
+                source,
+            })?;
+            let area = 0.5 * (f.upper.double_area + f.lower.double_area);
+            let len = f.upper.length[0];
+            rest_h.push(RestHinge {
+                theta_bar: f.theta(),
+                a: 3.0 * len * len / area,
+                rest_length: len,
+                rest_area: area,
+            });
+        }
+        let params = rest_h
+            .iter()
+            .enumerate()
+            .map(|(i, r)| psi.params(i, r))
+            .collect();
+        let n = rest.n_vertices();
+        let tris = topology.triangles();
+        let mut edge_hinge = vec![NONE; topology.edges().len()];
+        for (i, h) in topology.hinges().iter().enumerate() {
+            edge_hinge[h.edge] = i as u32;
+        }
+        let tri_elements: Vec<u32> = (0..tris.len())
+            .filter(|&t| {
+                topology.triangle_edges()[t]
+                    .iter()
+                    .any(|&e| edge_hinge[e] != NONE)
+            })
+            .map(|t| t as u32)
+            .collect();
+        let mut pairs = Vec::new();
+        for &t in &tri_elements {
+            let v = tris[t as usize];
+            pairs.extend([(v[0], v[1]), (v[1], v[2]), (v[2], v[0])]);
+        }
+        if !P::D2_IS_ZERO {
+            pairs.extend(
+                topology
+                    .hinges()
+                    .iter()
+                    .map(|h| (h.vertices[0], h.vertices[3])),
+            );
+        }
+        let pattern = SymmetricPattern::new(n, pairs);
+        let slot = |a: usize, b: usize| pattern.find(a, b).map_or(NONE, |s| s as u32);
+        let bits = topology.orientation_bits();
+        let tri_slots = tri_elements
+            .iter()
+            .map(|&t| {
+                let t = t as usize;
+                let v = tris[t];
+                let mut s = [NONE; 18];
+                s[..6].copy_from_slice(&[
+                    slot(v[0], v[0]),
+                    slot(v[1], v[1]),
+                    slot(v[2], v[2]),
+                    slot(v[0], v[1]),
+                    slot(v[1], v[2]),
+                    slot(v[2], v[0]),
+                ]);
+                for k in 0..3 {
+                    let e = topology.triangle_edges()[t][k];
+                    let hid = edge_hinge[e];
+                    if hid != NONE && bits[t] >> k & 1 == 1 {
+                        let hv = topology.hinges()[hid as usize].vertices;
+                        s[6 + 4 * k..10 + 4 * k].copy_from_slice(&[
+                            slot(hv[3], hv[3]),
+                            slot(hv[3], hv[0]),
+                            slot(hv[3], hv[1]),
+                            slot(hv[3], hv[2]),
+                        ]);
+                    }
+                }
+                s
+            })
+            .collect();
+        let hinge_slots = topology
+            .hinges()
+            .iter()
+            .map(|h| {
+                let v = h.vertices;
+                [
+                    slot(v[0], v[0]),
+                    slot(v[1], v[1]),
+                    slot(v[2], v[2]),
+                    slot(v[3], v[3]),
+                    slot(v[1], v[0]),
+                    slot(v[2], v[0]),
+                    slot(v[3], v[0]),
+                    slot(v[2], v[1]),
+                    slot(v[3], v[1]),
+                    slot(v[3], v[2]),
+                ]
+            })
+            .collect();
+        let mut model = Self {
+            psi,
+            topology,
+            rest: rest_h,
+            params,
+            pattern,
+            tri_elements,
+            tri_slots,
+            hinge_slots,
+            edge_hinge,
+            partitions: Vec::new(),
+        };
+        model.partitions = model.build_partitions();
+        Ok(model)
+    }
+
+    fn build_partitions(&self) -> Vec<Partition> {
+        let n = self.topology.n_vertices();
+        let count = n.div_ceil(PARTITION_VERTICES).max(1);
+        let mut parts: Vec<Partition> = (0..count)
+            .map(|p| {
+                let vs = p * n / count..(p + 1) * n / count;
+                Partition {
+                    values: self.pattern.block_col_value_start(vs.start)
+                        ..self.pattern.block_col_value_start(vs.end),
+                    vertices: vs,
+                    tris: Vec::new(),
+                    hinges: Vec::new(),
+                }
+            })
+            .collect();
+        let part_of = |v: usize| (v * count + count - 1) / n.max(1);
+        let owner = |v: usize| {
+            // The partition whose range holds v (ranges are p*n/count .. (p+1)*n/count).
+            let mut p = part_of(v).min(count - 1);
+            while parts_range(p, n, count).start > v {
+                p -= 1;
+            }
+            while parts_range(p, n, count).end <= v {
+                p += 1;
+            }
+            p
+        };
+        let tris = self.topology.triangles();
+        for (e, &t) in self.tri_elements.iter().enumerate() {
+            let mut owners: Vec<usize> = Vec::with_capacity(6);
+            let v = tris[t as usize];
+            owners.extend(v.iter().map(|&x| owner(x)));
+            for k in 0..3 {
+                let hid = self.edge_hinge[self.topology.triangle_edges()[t as usize][k]];
+                if hid != NONE {
+                    owners.push(owner(self.topology.hinges()[hid as usize].vertices[3]));
+                    owners.push(owner(self.topology.hinges()[hid as usize].vertices[0]));
+                }
+            }
+            owners.sort_unstable();
+            owners.dedup();
+            for p in owners {
+                parts[p].tris.push(e as u32);
+            }
+        }
+        for (hid, h) in self.topology.hinges().iter().enumerate() {
+            let mut owners: Vec<usize> = h.vertices.iter().map(|&x| owner(x)).collect();
+            owners.sort_unstable();
+            owners.dedup();
+            for p in owners {
+                parts[p].hinges.push(hid as u32);
+            }
+        }
+        parts
+    }
+
+    /// The ψ this model evaluates.
+    pub fn psi(&self) -> &P {
+        &self.psi
+    }
+
+    /// The mesh topology.
+    pub fn topology(&self) -> &Topology {
+        &self.topology
+    }
+
+    /// Rest quantities per hinge.
+    pub fn rest_hinges(&self) -> &[RestHinge] {
+        &self.rest
+    }
+
+    /// The Hessian's sparsity pattern (lower triangle, CSC).
+    pub fn pattern(&self) -> &SymmetricPattern {
+        &self.pattern
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.topology.n_vertices()
+    }
+
+    /// Output buffers sized for this model.
+    pub fn new_output(&self) -> Evaluation {
+        Evaluation {
+            energy: 0.0,
+            gradient: vec![0.0; 3 * self.n_vertices()],
+            hessian: vec![0.0; self.pattern.nnz()],
+        }
+    }
+
+    /// Convenience: evaluates into fresh buffers.
+    ///
+    /// # Errors
+    /// As [`BendingModel::evaluate_into`].
+    pub fn evaluate(
+        &self,
+        x: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+        par: Parallelism,
+    ) -> Result<Evaluation, EvalError> {
+        let mut out = self.new_output();
+        let mut scratch = self.new_scratch();
+        self.evaluate_into(x, request, method, par, &mut scratch, &mut out)?;
+        Ok(out)
+    }
+
+    /// Per-hinge scratch space for [`BendingModel::evaluate_into`], allocated once.
+    pub fn new_scratch(&self) -> Scratch {
+        Scratch {
+            hinges: vec![HingeState::default(); self.topology.hinges().len()],
+        }
+    }
+
+    /// Evaluates the requested quantities at positions `x` into `out`, using `scratch`.
+    ///
+    /// # Errors
+    /// [`MeshError::VertexCountMismatch`] or [`MeshError::NonFiniteCoordinate`] for bad positions;
+    /// [`EvalError::Hinge`] naming the lowest-numbered degenerate hinge; [`EvalError::NonFiniteEnergy`] when ψ
+    /// is not finite at some hinge (the tan energy at θ = ±π). On error `out` holds no meaningful values.
+    pub fn evaluate_into(
+        &self,
+        x: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+        par: Parallelism,
+        scratch: &mut Scratch,
+        out: &mut Evaluation,
+    ) -> Result<(), EvalError> {
+        check_same_vertex_count(self.n_vertices(), x.len())?;
+        if out.gradient.len() != 3 * self.n_vertices() || out.hessian.len() != self.pattern.nnz() {
+            return Err(EvalError::Mesh(MeshError::VertexCountMismatch {
+                rest: self.n_vertices(),
+                deformed: out.gradient.len() / 3,
+            }));
+        }
+        if scratch.hinges.len() != self.topology.hinges().len() {
+            scratch.hinges = vec![HingeState::default(); self.topology.hinges().len()];
+        }
+        // Pass 1: per hinge.
+        let need_grad = request.gradient || (request.hessian && !P::D2_IS_ZERO);
+        let states = &mut scratch.hinges[..];
+        let first_error = match par {
+            Parallelism::Sequential => states
+                .iter_mut()
+                .enumerate()
+                .find_map(|(i, s)| self.hinge_pass(i, x, need_grad, s).err()),
+            Parallelism::Rayon => states
+                .par_iter_mut()
+                .enumerate()
+                .filter_map(|(i, s)| self.hinge_pass(i, x, need_grad, s).err().map(|e| (i, e)))
+                .min_by_key(|(i, _)| *i)
+                .map(|(_, e)| e),
+        };
+        if let Some(e) = first_error {
+            return Err(e);
+        }
+        let states = &scratch.hinges[..];
+        out.energy = if request.value {
+            states.iter().map(|s| s.psi).sum()
+        } else {
+            0.0
+        };
+        if !(request.gradient || request.hessian) {
+            return Ok(());
+        }
+        // Pass 2: per partition.
+        let ctx = Ctx {
+            model: self,
+            x,
+            states,
+            request,
+            method,
+        };
+        let grad: &mut [f64] = if request.gradient {
+            &mut out.gradient
+        } else {
+            &mut []
+        };
+        let hess: &mut [f64] = if request.hessian {
+            &mut out.hessian
+        } else {
+            &mut []
+        };
+        match par {
+            Parallelism::Sequential => {
+                for p in &self.partitions {
+                    let (g, h) = (
+                        slice_of(grad, 3 * p.vertices.start, 3 * p.vertices.end),
+                        slice_of(hess, p.values.start, p.values.end),
+                    );
+                    ctx.run_partition(p, g, h);
+                }
+            }
+            Parallelism::Rayon => ctx.run_range(&self.partitions, grad, hess),
+        }
+        Ok(())
+    }
+
+    #[inline]
+    fn hinge_pass(
+        &self,
+        i: usize,
+        x: &[Vector3<f64>],
+        need_grad: bool,
+        s: &mut HingeState,
+    ) -> Result<(), EvalError> {
+        let h = &self.topology.hinges()[i];
+        let st: Stencil = h.vertices.map(|v| x[v]);
+        let f = HingeFrames::new(&st).map_err(|source| EvalError::Hinge {
+            hinge: i,
+            edge: h.edge,
+            vertices: h.vertices,
+            source,
+        })?;
+        let theta = f.theta();
+        let [psi, dpsi, d2psi] = self.psi.eval(&self.params[i], theta);
+        if !(psi.is_finite() && dpsi.is_finite() && d2psi.is_finite()) {
+            return Err(EvalError::NonFiniteEnergy {
+                hinge: i,
+                vertices: h.vertices,
+                theta,
+            });
+        }
+        s.psi = psi;
+        s.dpsi = dpsi;
+        s.d2psi = d2psi;
+        if need_grad {
+            s.grad = f.gradient();
+        }
+        Ok(())
+    }
+}
+
+/// Per-hinge scratch space reused across evaluations.
+#[derive(Debug, Clone)]
+pub struct Scratch {
+    hinges: Vec<HingeState>,
+}
+
+fn slice_of(s: &mut [f64], a: usize, b: usize) -> &mut [f64] {
+    if s.is_empty() { s } else { &mut s[a..b] }
+}
+
+fn parts_range(p: usize, n: usize, count: usize) -> std::ops::Range<usize> {
+    p * n / count..(p + 1) * n / count
+}
+
+struct Ctx<'a, P: HingePsi> {
+    model: &'a BendingModel<P>,
+    x: &'a [Vector3<f64>],
+    states: &'a [HingeState],
+    request: Request,
+    method: Method,
+}
+
+/// The part of the output one partition owns.
+struct Owned<'a> {
+    vertices: std::ops::Range<usize>,
+    values_start: usize,
+    grad: &'a mut [f64],
+    hess: &'a mut [f64],
+}
+
+impl Owned<'_> {
+    #[inline]
+    fn add_grad(&mut self, v: usize, g: &Vector3<f64>) {
+        if !self.grad.is_empty() && self.vertices.contains(&v) {
+            let o = 3 * (v - self.vertices.start);
+            self.grad[o] += g.x;
+            self.grad[o + 1] += g.y;
+            self.grad[o + 2] += g.z;
+        }
+    }
+
+    /// Adds block `b` for (row vertex `r`, column vertex `c`) at `slot`.
+    #[inline]
+    fn add_block(
+        &mut self,
+        pattern: &SymmetricPattern,
+        slot: u32,
+        r: usize,
+        c: usize,
+        b: &Matrix3<f64>,
+    ) {
+        if slot == NONE || self.hess.is_empty() {
+            return;
+        }
+        let s = &pattern.blocks()[slot as usize];
+        if !self.vertices.contains(&(s.col as usize)) {
+            return;
+        }
+        let base = self.values_start;
+        if r == c {
+            for cc in 0..3 {
+                let o = s.offset[cc] as usize - base;
+                for rr in cc..3 {
+                    self.hess[o + rr - cc] += b[(rr, cc)];
+                }
+            }
+        } else if r > c {
+            for cc in 0..3 {
+                let o = s.offset[cc] as usize - base;
+                self.hess[o] += b[(0, cc)];
+                self.hess[o + 1] += b[(1, cc)];
+                self.hess[o + 2] += b[(2, cc)];
+            }
+        } else {
+            // Stored block is (c, r) = bᵀ.
+            for cc in 0..3 {
+                let o = s.offset[cc] as usize - base;
+                self.hess[o] += b[(cc, 0)];
+                self.hess[o + 1] += b[(cc, 1)];
+                self.hess[o + 2] += b[(cc, 2)];
+            }
+        }
+    }
+}
+
+impl<P: HingePsi> Ctx<'_, P> {
+    fn run_range(&self, parts: &[Partition], grad: &mut [f64], hess: &mut [f64]) {
+        match parts.len() {
+            0 => {}
+            1 => self.run_partition(&parts[0], grad, hess),
+            n => {
+                let (a, b) = parts.split_at(n / 2);
+                let gsplit = 3 * (b[0].vertices.start - a[0].vertices.start);
+                let hsplit = b[0].values.start - a[0].values.start;
+                let (ga, gb) = if grad.is_empty() {
+                    (&mut [][..], &mut [][..])
+                } else {
+                    grad.split_at_mut(gsplit)
+                };
+                let (ha, hb) = if hess.is_empty() {
+                    (&mut [][..], &mut [][..])
+                } else {
+                    hess.split_at_mut(hsplit)
+                };
+                rayon::join(|| self.run_range(a, ga, ha), || self.run_range(b, gb, hb));
+            }
+        }
+    }
+
+    fn run_partition(&self, p: &Partition, grad: &mut [f64], hess: &mut [f64]) {
+        grad.fill(0.0);
+        hess.fill(0.0);
+        let mut own = Owned {
+            vertices: p.vertices.clone(),
+            values_start: p.values.start,
+            grad,
+            hess,
+        };
+        match self.method {
+            Method::Refactored => {
+                for &e in &p.tris {
+                    self.triangle(e as usize, &mut own);
+                }
+            }
+            Method::PerHinge | Method::Autodiff => {
+                for &h in &p.hinges {
+                    self.hinge(h as usize, &mut own);
+                }
+            }
+        }
+    }
+
+    /// One refactored element: H^Δ (Eq. 7) plus the assigned hinges' outer products and gradients.
+    #[inline]
+    fn triangle(&self, e: usize, own: &mut Owned) {
+        let m = self.model;
+        let t = m.tri_elements[e] as usize;
+        let v = m.topology.triangles()[t];
+        let slots = &m.tri_slots[e];
+        let edges = m.topology.triangle_edges()[t];
+        let bits = m.topology.orientation_bits()[t];
+        let hid = edges.map(|ed| m.edge_hinge[ed]);
+        let assigned = |k: usize| hid[k] != NONE && bits >> k & 1 == 1;
+        if self.request.gradient {
+            for k in 0..3 {
+                if assigned(k) {
+                    let s = &self.states[hid[k] as usize];
+                    let hv = m.topology.hinges()[hid[k] as usize].vertices;
+                    for a in 0..4 {
+                        own.add_grad(hv[a], &(s.grad[a] * s.dpsi));
+                    }
+                }
+            }
+        }
+        if !self.request.hessian {
+            return;
+        }
+        // Only fails on a triangle the hinge pass already accepted if positions changed: they cannot.
+        let Ok(f) = TriangleFrame::new(&self.x[v[0]], &self.x[v[1]], &self.x[v[2]]) else {
+            return;
+        };
+        let c = hid.map(|h| {
+            if h == NONE {
+                0.0
+            } else {
+                self.states[h as usize].dpsi
+            }
+        });
+        let cs = &f.cos_angle;
+        let d = [0, 1, 2]
+            .map(|i| c[(i + 2) % 3] * cs[(i + 1) % 3] + c[(i + 1) % 3] * cs[(i + 2) % 3] - c[i]);
+        let mm = [0, 1, 2].map(|i| f.normal * f.edge_normal[i].transpose());
+        let r = [0, 1, 2].map(|i| mm[i] * (c[i] * f.inv_length_sq[i]));
+        let ih = &f.inv_altitude;
+        let mut blk = [Matrix3::zeros(); 6];
+        for i in 0..3 {
+            let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
+            let w = ih[i] * ih[i];
+            let s = mm[i] * (w * d[i]);
+            blk[i] = s + s.transpose() - r[i1] - r[i2];
+            let w = ih[i] * ih[i1];
+            // † transposes R_{i+2} in the lower triangle T̃ of edge i+2's hinge (orientation bit clear).
+            let ri2 = if bits >> i2 & 1 == 1 {
+                r[i2]
+            } else {
+                r[i2].transpose()
+            };
+            blk[3 + i] = mm[i1].transpose() * (w * d[i]) + mm[i] * (w * d[i1]) + ri2;
+        }
+        // ψ″ ∇θ∇θᵀ of the assigned hinges.
+        if !P::D2_IS_ZERO {
+            for k in 0..3 {
+                if !assigned(k) {
+                    continue;
+                }
+                let s = &self.states[hid[k] as usize];
+                let g = s.grad.map(|gv| gv * s.d2psi);
+                let gr = &s.grad;
+                // Hinge x0, x1, x2 are corners k, k+1, k+2.
+                let corner = [k, (k + 1) % 3, (k + 2) % 3];
+                for a in 0..3 {
+                    blk[corner[a]] += g[a] * gr[a].transpose();
+                    let b = (a + 1) % 3;
+                    // Own off-diagonal block 3+i is (corner i, corner i+1).
+                    let (ca, cb) = (corner[a], corner[b]);
+                    if (ca + 1) % 3 == cb {
+                        blk[3 + ca] += g[a] * gr[b].transpose();
+                    } else {
+                        blk[3 + cb] += g[b] * gr[a].transpose();
+                    }
+                }
+                let hv = m.topology.hinges()[hid[k] as usize].vertices;
+                let x3 = hv[3];
+                own.add_block(
+                    &m.pattern,
+                    slots[6 + 4 * k],
+                    x3,
+                    x3,
+                    &(g[3] * gr[3].transpose()),
+                );
+                for a in 0..3 {
+                    own.add_block(
+                        &m.pattern,
+                        slots[7 + 4 * k + a],
+                        x3,
+                        hv[a],
+                        &(g[3] * gr[a].transpose()),
+                    );
+                }
+            }
+        }
+        for i in 0..3 {
+            own.add_block(&m.pattern, slots[i], v[i], v[i], &blk[i]);
+            let i1 = (i + 1) % 3;
+            own.add_block(&m.pattern, slots[3 + i], v[i], v[i1], &blk[3 + i]);
+        }
+    }
+
+    /// One per-hinge element (closed form or autodiff).
+    #[inline]
+    fn hinge(&self, hid: usize, own: &mut Owned) {
+        let m = self.model;
+        let h = &m.topology.hinges()[hid];
+        let s = &self.states[hid];
+        let st: Stencil = h.vertices.map(|v| self.x[v]);
+        let hv = h.vertices;
+        let slots = &m.hinge_slots[hid];
+        const PAIRS: [(usize, usize); 10] = [
+            (0, 0),
+            (1, 1),
+            (2, 2),
+            (3, 3),
+            (1, 0),
+            (2, 0),
+            (3, 0),
+            (2, 1),
+            (3, 1),
+            (3, 2),
+        ];
+        match self.method {
+            Method::Autodiff => {
+                let p = &m.params[hid];
+                let coords = SVector::<f64, 12>::from(flatten(&st));
+                let (_, g, hm): (f64, SVector<f64, 12>, SMatrix<f64, 12, 12>) = hessian(
+                    |c: SVector<Dual2SVec64<12>, 12>| {
+                        let arr: [Dual2SVec64<12>; 12] = c.into();
+                        m.psi.psi_dual(p, hinge_angle_generic(&arr))
+                    },
+                    &coords,
+                );
+                if self.request.gradient {
+                    for a in 0..4 {
+                        own.add_grad(hv[a], &Vector3::new(g[3 * a], g[3 * a + 1], g[3 * a + 2]));
+                    }
+                }
+                if self.request.hessian {
+                    for (q, &(a, b)) in PAIRS.iter().enumerate() {
+                        let blk: Matrix3<f64> = hm.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
+                        own.add_block(&m.pattern, slots[q], hv[a], hv[b], &blk);
+                    }
+                }
+            }
+            _ => {
+                if self.request.gradient {
+                    for a in 0..4 {
+                        own.add_grad(hv[a], &(s.grad[a] * s.dpsi));
+                    }
+                }
+                if !self.request.hessian {
+                    return;
+                }
+                let Ok(f) = HingeFrames::new(&st) else {
+                    return;
+                };
+                let hb = hessian_blocks(&f);
+                let g = f.gradient();
+                for (q, &(a, b)) in PAIRS.iter().enumerate() {
+                    let mut blk = if a == b {
+                        (hb[a][a] + hb[a][a].transpose()) * (0.5 * s.dpsi)
+                    } else {
+                        hb[a][b] * s.dpsi
+                    };
+                    if !P::D2_IS_ZERO {
+                        blk += (g[a] * s.d2psi) * g[b].transpose();
+                    }
+                    own.add_block(&m.pattern, slots[q], hv[a], hv[b], &blk);
+                }
+            }
+        }
+    }
+}

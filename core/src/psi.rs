@@ -1,0 +1,173 @@
+//! The ψ interface: a bending energy ψ(θ) per hinge, with per-hinge parameters from the rest state.
+//!
+//! The energy of a mesh is `E = Σ_hinges ψ_h(θ_h)`; by the chain rule (paper Eqs. 2–3)
+//!
+//! ```text
+//! ∇ψ = ψ′ ∇θ,        Hess ψ = ψ′ Hess θ + ψ″ ∇θ ∇θᵀ.
+//! ```
+//!
+//! A [`HingePsi`] provides ψ, ψ′, ψ″ of θ given per-hinge parameters it computes once from the rest state
+//! ([`RestHinge`]: θ̄, `a = 3|ē|²/Ā`, rest length, rest area). Parameters may differ hinge by hinge (graded or
+//! anisotropic stiffness). [`HingePsi::D2_IS_ZERO`] lets the kernels drop the ψ″ outer-product pass and its
+//! x0–x3 couplings from the sparsity pattern. Several terms on the same hinges compose as a tuple `(A, B)`:
+//! their ψ′ and ψ″ are summed per hinge, so the geometry is evaluated once (paper §5).
+//!
+//! [`HingePsi::psi_dual`] is ψ written once for any num-dual scalar: the `autodiff` method and the tests
+//! differentiate it, so every hand-written ψ′ and ψ″ is checked against it.
+
+use num_dual::DualNum;
+
+/// Rest-state quantities of one hinge, computed once at set-up.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RestHinge {
+    /// Rest hinge angle θ̄ ∈ (−π, π].
+    pub theta_bar: f64,
+    /// `a = 3|ē|² / Ā`, with Ā the summed rest area of the two triangles.
+    pub a: f64,
+    /// Rest length `|ē|` of the hinge edge.
+    pub rest_length: f64,
+    /// Ā: the summed rest area of the two triangles.
+    pub rest_area: f64,
+}
+
+/// A hinge bending energy ψ(θ).
+pub trait HingePsi: Sync {
+    /// Per-hinge parameters, computed once from the rest state by [`HingePsi::params`].
+    type Params: Copy + Send + Sync;
+
+    /// True when ψ″ ≡ 0 for every θ (ψ affine in θ): the kernels then skip the outer-product pass and the
+    /// pattern omits the x0–x3 couplings.
+    const D2_IS_ZERO: bool = false;
+
+    /// Parameters of hinge `hinge` from its rest quantities.
+    fn params(&self, hinge: usize, rest: &RestHinge) -> Self::Params;
+
+    /// `[ψ, ψ′, ψ″]` at θ. A value that cannot be represented (the tan energy at θ = ±π) is returned as
+    /// non-finite; the engine reports it as a typed error naming the hinge.
+    fn eval(&self, p: &Self::Params, theta: f64) -> [f64; 3];
+
+    /// ψ alone at θ (default: from [`HingePsi::eval`]).
+    fn value(&self, p: &Self::Params, theta: f64) -> f64 {
+        self.eval(p, theta)[0]
+    }
+
+    /// ψ for any dual scalar: the reference that `autodiff` and the tests differentiate.
+    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D;
+}
+
+impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
+    type Params = (A::Params, B::Params);
+    const D2_IS_ZERO: bool = A::D2_IS_ZERO && B::D2_IS_ZERO;
+
+    fn params(&self, hinge: usize, rest: &RestHinge) -> Self::Params {
+        (self.0.params(hinge, rest), self.1.params(hinge, rest))
+    }
+
+    #[inline]
+    fn eval(&self, p: &Self::Params, theta: f64) -> [f64; 3] {
+        let a = self.0.eval(&p.0, theta);
+        let b = self.1.eval(&p.1, theta);
+        [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+    }
+
+    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D {
+        self.0.psi_dual(&p.0, theta) + self.1.psi_dual(&p.1, theta)
+    }
+}
+
+/// Per-hinge parameters shared by the hand-written energies: `k·a` and θ̄ (or φ(θ̄)).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ScaledRest {
+    /// Stiffness times `a`.
+    pub ka: f64,
+    /// The rest value the energy compares against (θ̄ or φ(θ̄)).
+    pub rest: f64,
+}
+
+/// Stiffness: one value for every hinge, or one per hinge (graded or anisotropic materials).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Stiffness {
+    /// The same `k` everywhere.
+    Uniform(f64),
+    /// `k` per hinge, in hinge order.
+    PerHinge(Vec<f64>),
+}
+
+impl Stiffness {
+    /// `k` of hinge `h` (0 for a hinge beyond a too-short per-hinge list; the engine checks lengths when an
+    /// energy is bound to a mesh).
+    pub fn at(&self, h: usize) -> f64 {
+        match self {
+            Stiffness::Uniform(k) => *k,
+            Stiffness::PerHinge(ks) => ks.get(h).copied().unwrap_or(0.0),
+        }
+    }
+}
+
+/// Discrete shells (Grinspun et al. 2003): `ψ = k·a·(θ − θ̄)²`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DiscreteShells {
+    /// Bending stiffness k.
+    pub k: Stiffness,
+}
+
+impl HingePsi for DiscreteShells {
+    type Params = ScaledRest;
+
+    fn params(&self, hinge: usize, rest: &RestHinge) -> ScaledRest {
+        ScaledRest {
+            ka: self.k.at(hinge) * rest.a,
+            rest: rest.theta_bar,
+        }
+    }
+
+    #[inline]
+    fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
+        let d = theta - p.rest;
+        [p.ka * d * d, 2.0 * p.ka * d, 2.0 * p.ka]
+    }
+
+    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
+        let d = theta - p.rest;
+        d * d * p.ka
+    }
+}
+
+/// The tan-based energy of the paper (§5): `ψ = k·a·(φ(θ) − φ(θ̄))²` with `φ(θ) = 2 tan(θ/2)`.
+///
+/// It grows without bound as θ → ±π (a barrier against folding through). At θ = ±π exactly the values are
+/// not finite and the engine reports a typed error.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TanBending {
+    /// Bending stiffness k.
+    pub k: Stiffness,
+}
+
+impl HingePsi for TanBending {
+    type Params = ScaledRest;
+
+    fn params(&self, hinge: usize, rest: &RestHinge) -> ScaledRest {
+        ScaledRest {
+            ka: self.k.at(hinge) * rest.a,
+            rest: 2.0 * (0.5 * rest.theta_bar).tan(),
+        }
+    }
+
+    #[inline]
+    fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
+        // φ = 2t, φ′ = 1 + t², φ″ = t(1 + t²) with t = tan(θ/2).
+        let t = (0.5 * theta).tan();
+        let s = 1.0 + t * t;
+        let d = 2.0 * t - p.rest;
+        [
+            p.ka * d * d,
+            2.0 * p.ka * d * s,
+            2.0 * p.ka * (s * s + d * t * s),
+        ]
+    }
+
+    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
+        let d = (theta * 0.5).tan() * 2.0 - p.rest;
+        d * d * p.ka
+    }
+}

@@ -1,0 +1,395 @@
+//! The assembly engine: the three methods agree, match finite differences and the outside world (shared
+//! reference data), and are bitwise deterministic across thread counts.
+
+use hinge_core::bending::{BendingModel, Evaluation, Method, Parallelism, Request};
+use hinge_core::grid::{Diagonal, grid, unit_grid};
+use hinge_core::obj::read_obj;
+use hinge_core::psi::{DiscreteShells, HingePsi, Stiffness, TanBending};
+use hinge_core::{TriMesh, nalgebra::Vector3};
+use hinge_tests::*;
+
+fn data(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name)
+}
+
+fn ds() -> DiscreteShells {
+    DiscreteShells {
+        k: Stiffness::Uniform(1.0),
+    }
+}
+
+fn frob<P: HingePsi>(m: &BendingModel<P>, e: &Evaluation) -> f64 {
+    sym_frobenius(m.pattern().col_ptr(), m.pattern().row_idx(), &e.hessian)
+}
+
+#[test]
+fn reproduces_libshell_tinyad_codim_ipc_reference() {
+    let rest = read_obj(data("grid80_rest.obj")).unwrap();
+    let def = read_obj(data("grid80_jitter.obj")).unwrap();
+    let model = BendingModel::new(&rest, ds()).unwrap();
+    assert_eq!(model.topology().hinges().len(), 19040);
+    assert_eq!(model.pattern().nnz_full(), 750249);
+    for method in [Method::Refactored, Method::PerHinge] {
+        let e = model
+            .evaluate(def.positions(), Request::ALL, method, Parallelism::Rayon)
+            .unwrap();
+        let g: f64 = e.gradient.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let h = frob(&model, &e);
+        println!(
+            "{method:?}: E {:.16e} |g| {:.16e} |H|_F {:.16e}",
+            e.energy, g, h
+        );
+        let rel = |a: f64, b: f64| ((a - b) / b).abs();
+        assert!(
+            rel(e.energy, 980.040445327099) < 1e-13,
+            "energy {}",
+            e.energy
+        );
+        assert!(rel(g, 53449.98132754365) < 1e-13, "gradient norm {g}");
+        assert!(rel(h, 92530009.93375617) < 1e-13, "hessian norm {h}");
+    }
+}
+
+#[test]
+fn regenerated_reference_mesh_matches_the_files() {
+    let rest = unit_grid(80).unwrap();
+    let file = read_obj(data("grid80_rest.obj")).unwrap();
+    assert_eq!(rest.triangles(), file.triangles());
+    let jit = reference_jitter(rest.positions());
+    let def = read_obj(data("grid80_jitter.obj")).unwrap();
+    for (a, b) in jit.iter().zip(def.positions()) {
+        assert!((a - b).norm() < 1e-15, "{a} vs {b}");
+    }
+}
+
+/// An irregular mesh with boundary and a non-flat rest shape: an alternating grid, rest bent into a cylinder
+/// patch with jitter, deformed by a wave plus jitter.
+fn irregular() -> (TriMesh, Vec<Vector3<f64>>) {
+    let flat = grid(9, 7, 1.3, 1.0, Diagonal::Alternating).unwrap();
+    let mut rng = SplitMix64(3);
+    let rest: Vec<_> = flat
+        .positions()
+        .iter()
+        .map(|p| {
+            let a = p.x * 1.2;
+            Vector3::new(
+                a.sin(),
+                p.y + 0.02 * rng.symmetric(),
+                1.0 - a.cos() + 0.02 * rng.symmetric(),
+            )
+        })
+        .collect();
+    let rest = flat.with_positions(rest).unwrap();
+    let def = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            p + Vector3::new(
+                0.03 * rng.symmetric(),
+                0.03 * rng.symmetric(),
+                0.2 * (2.0 * p.y).sin(),
+            )
+        })
+        .collect();
+    (rest, def)
+}
+
+fn cases() -> Vec<(&'static str, TriMesh, Vec<Vector3<f64>>)> {
+    let g = unit_grid(12).unwrap();
+    let gd = reference_jitter(g.positions());
+    let (r, d) = irregular();
+    vec![("grid", g, gd), ("irregular", r, d)]
+}
+
+fn method_agreement<P: HingePsi + Clone>(psi: P, bound_ulps: f64) {
+    for (name, rest, def) in cases() {
+        let model = BendingModel::new(&rest, psi.clone()).unwrap();
+        let ev = |m| {
+            model
+                .evaluate(&def, Request::ALL, m, Parallelism::Sequential)
+                .unwrap()
+        };
+        let (r, p, a) = (
+            ev(Method::Refactored),
+            ev(Method::PerHinge),
+            ev(Method::Autodiff),
+        );
+        let ulps = |x: &[f64], y: &[f64]| rel_error(x, y) / UNIT_ROUNDOFF;
+        let (rp, ra, pa) = (
+            ulps(&r.hessian, &p.hessian),
+            ulps(&r.hessian, &a.hessian),
+            ulps(&p.hessian, &a.hessian),
+        );
+        let (gp, ga) = (
+            ulps(&r.gradient, &p.gradient),
+            ulps(&r.gradient, &a.gradient),
+        );
+        println!(
+            "{name}: hessian refactored~per_hinge {rp:.2} refactored~autodiff {ra:.2} per_hinge~autodiff {pa:.2} ulps; gradient {gp:.2} {ga:.2}"
+        );
+        assert_eq!(r.energy, p.energy);
+        assert!(rp <= bound_ulps && ra <= bound_ulps && pa <= bound_ulps);
+        // Same per-hinge gradients, summed per vertex in triangle order vs hinge order.
+        assert!(gp <= 8.0, "gradient refactored vs per_hinge {gp} ulps");
+        assert!(ga <= bound_ulps);
+    }
+}
+
+#[test]
+fn methods_agree_discrete_shells() {
+    method_agreement(ds(), 64.0);
+}
+
+#[test]
+fn methods_agree_tan_bending() {
+    method_agreement(
+        TanBending {
+            k: Stiffness::Uniform(2.5),
+        },
+        64.0,
+    );
+}
+
+#[test]
+fn whole_mesh_gradient_and_hessian_match_finite_differences() {
+    let (rest, def) = irregular();
+    let model = BendingModel::new(
+        &rest,
+        TanBending {
+            k: Stiffness::Uniform(1.0),
+        },
+    )
+    .unwrap();
+    let e = model
+        .evaluate(
+            &def,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    let n = 3 * def.len();
+    let h = 1e-6;
+    let at = |i: usize, d: f64| {
+        let mut y = def.clone();
+        y[i / 3][i % 3] += d;
+        y
+    };
+    let mut fd_g = vec![0.0; n];
+    let dense = sym_dense(
+        model.pattern().col_ptr(),
+        model.pattern().row_idx(),
+        &e.hessian,
+    );
+    let mut fd_h = vec![0.0; n * n];
+    for i in 0..n {
+        let (p, m) = (at(i, h), at(i, -h));
+        let ep = model
+            .evaluate(
+                &p,
+                Request::GRADIENT,
+                Method::Refactored,
+                Parallelism::Sequential,
+            )
+            .unwrap();
+        let em = model
+            .evaluate(
+                &m,
+                Request::GRADIENT,
+                Method::Refactored,
+                Parallelism::Sequential,
+            )
+            .unwrap();
+        fd_g[i] = (ep.energy - em.energy) / (2.0 * h);
+        for j in 0..n {
+            fd_h[i * n + j] = (ep.gradient[j] - em.gradient[j]) / (2.0 * h);
+        }
+    }
+    let eg = rel_error(&e.gradient, &fd_g);
+    let eh = rel_error(&dense, &fd_h);
+    println!("whole mesh: gradient vs FD {eg:.3e}, hessian vs FD {eh:.3e}");
+    assert!(eg < 1e-7 && eh < 1e-7);
+}
+
+#[test]
+fn bitwise_identical_for_any_thread_count() {
+    // Large enough for several partitions.
+    let rest = unit_grid(90).unwrap();
+    let def = reference_jitter(rest.positions());
+    let model = BendingModel::new(
+        &rest,
+        TanBending {
+            k: Stiffness::Uniform(1.0),
+        },
+    )
+    .unwrap();
+    for method in [Method::Refactored, Method::PerHinge] {
+        let seq = model
+            .evaluate(&def, Request::ALL, method, Parallelism::Sequential)
+            .unwrap();
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let par = pool.install(|| {
+                model
+                    .evaluate(&def, Request::ALL, method, Parallelism::Rayon)
+                    .unwrap()
+            });
+            assert_eq!(seq.energy.to_bits(), par.energy.to_bits());
+            assert!(
+                seq.gradient
+                    .iter()
+                    .zip(&par.gradient)
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            );
+            assert!(
+                seq.hessian
+                    .iter()
+                    .zip(&par.hessian)
+                    .all(|(a, b)| a.to_bits() == b.to_bits())
+            );
+        }
+    }
+}
+
+#[test]
+fn boundary_edges_contribute_nothing_and_tiny_meshes_work() {
+    let quad = vec![
+        Vector3::new(0.0, 0.0, 0.0),
+        Vector3::new(1.0, 0.0, 0.0),
+        Vector3::new(1.0, 1.0, 0.0),
+        Vector3::new(0.0, 1.0, 0.0),
+    ];
+    // One triangle: no hinge, zero everything, a diagonal-only pattern.
+    let one = TriMesh::new(quad[..3].to_vec(), vec![[0, 1, 2]]).unwrap();
+    let m1 = BendingModel::new(&one, ds()).unwrap();
+    let mut bent = one.positions().to_vec();
+    bent[2].z = 0.4;
+    let e1 = m1
+        .evaluate(
+            &bent,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    assert_eq!(e1.energy, 0.0);
+    assert!(e1.gradient.iter().chain(&e1.hessian).all(|&v| v == 0.0));
+    assert_eq!(m1.pattern().nnz(), 3 * 6);
+    // Two triangles: one hinge; all methods agree with the single-hinge kernel.
+    let two = TriMesh::new(quad.clone(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let m2 = BendingModel::new(&two, ds()).unwrap();
+    let mut def = quad.clone();
+    def[3].z = 0.5;
+    let r = m2
+        .evaluate(
+            &def,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    let x = m2.topology().hinges()[0].vertices.map(|v| def[v]);
+    let theta = hinge_core::hinge::hinge_angle(&x).unwrap();
+    let a = m2.rest_hinges()[0].a;
+    assert!((r.energy - a * theta * theta).abs() < 1e-15);
+    for method in [Method::PerHinge, Method::Autodiff] {
+        let o = m2
+            .evaluate(&def, Request::ALL, method, Parallelism::Sequential)
+            .unwrap();
+        assert!(rel_error(&o.hessian, &r.hessian) < 1e-14);
+        assert!(rel_error(&o.gradient, &r.gradient) < 1e-14);
+    }
+    // A third triangle hanging off a boundary edge only adds its own hinge: moving a vertex that belongs to
+    // no hinge's stencil changes nothing.
+    let five = vec![
+        quad[0],
+        quad[1],
+        quad[2],
+        quad[3],
+        Vector3::new(2.0, 0.5, 0.0),
+    ];
+    let m3 = BendingModel::new(
+        &TriMesh::new(five.clone(), vec![[0, 1, 2], [0, 2, 3]]).unwrap(),
+        ds(),
+    );
+    assert!(m3.is_ok());
+}
+
+#[test]
+fn unrequested_outputs_are_untouched_and_errors_name_the_hinge() {
+    let rest = unit_grid(6).unwrap();
+    let model = BendingModel::new(
+        &rest,
+        TanBending {
+            k: Stiffness::Uniform(1.0),
+        },
+    )
+    .unwrap();
+    let def = reference_jitter(rest.positions());
+    let mut out = model.new_output();
+    out.hessian.fill(7.0);
+    let mut scratch = model.new_scratch();
+    model
+        .evaluate_into(
+            &def,
+            Request::GRADIENT,
+            Method::Refactored,
+            Parallelism::Sequential,
+            &mut scratch,
+            &mut out,
+        )
+        .unwrap();
+    assert!(out.hessian.iter().all(|&v| v == 7.0));
+    // Fold hinge 5 flat onto itself (θ = π in floating point): tan(θ/2) is huge but finite in f64, so the
+    // result is finite everywhere (never NaN) or a typed error.
+    let h = model.topology().hinges()[5];
+    let mut folded = rest.positions().to_vec();
+    let mid = (folded[h.vertices[1]] + folded[h.vertices[2]]) * 0.5;
+    folded[h.vertices[3]] = mid + (folded[h.vertices[0]] - mid) * 0.5;
+    match model.evaluate(
+        &folded,
+        Request::ALL,
+        Method::Refactored,
+        Parallelism::Sequential,
+    ) {
+        Ok(e) => assert!(
+            e.energy.is_finite() && e.gradient.iter().chain(&e.hessian).all(|v| v.is_finite())
+        ),
+        Err(e) => assert!(matches!(e, hinge_core::EvalError::NonFiniteEnergy { .. })),
+    }
+    // A collapsed triangle in the deformed state: a typed error naming the lowest hinge that uses it.
+    let mut collapsed = rest.positions().to_vec();
+    let h0 = model.topology().hinges()[0];
+    collapsed[h0.vertices[0]] = (collapsed[h0.vertices[1]] + collapsed[h0.vertices[2]]) * 0.5;
+    match model.evaluate(
+        &collapsed,
+        Request::ALL,
+        Method::Refactored,
+        Parallelism::Rayon,
+    ) {
+        Err(hinge_core::EvalError::Hinge { hinge, .. }) => assert_eq!(hinge, 0),
+        other => panic!("expected a hinge error, got {:?}", other.map(|e| e.energy)),
+    }
+    let mut nan = def.clone();
+    nan[3].x = f64::NAN;
+    assert!(
+        model
+            .evaluate(&nan, Request::ALL, Method::Refactored, Parallelism::Rayon)
+            .is_err()
+    );
+    assert!(
+        model
+            .evaluate(
+                &def[1..],
+                Request::ALL,
+                Method::Refactored,
+                Parallelism::Rayon
+            )
+            .is_err()
+    );
+}
