@@ -1,7 +1,11 @@
 //! `hinge`: the command line of the hinge bending-energy framework.
 //!
 //! Until the scenes exist (see README status), the main job prints the topology and hinge-angle statistics of
-//! a mesh: by default a grid deformed by the smooth wave of the reference data.
+//! a mesh: by default a grid deformed by the smooth wave of the reference data. `hinge eval` evaluates an
+//! energy on your meshes and exports it; `hinge bench` measures the assembly methods.
+
+mod bench;
+mod eval;
 
 use std::process::ExitCode;
 
@@ -35,6 +39,10 @@ enum Command {
         #[arg(long, default_value_t = 80)]
         n: usize,
     },
+    /// Evaluate a hinge energy: energy (JSON on stdout), gradient.txt and hessian.mtx in --out.
+    Eval(eval::EvalArgs),
+    /// Benchmark energy + gradient + Hessian + assembly per method (medians, ns per hinge).
+    Bench(bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -42,6 +50,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         None => stats(None, None, 80),
         Some(Command::Stats { rest, deformed, n }) => stats(rest, deformed, n),
+        Some(Command::Eval(args)) => eval::run(args),
+        Some(Command::Bench(args)) => bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

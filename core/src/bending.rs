@@ -35,7 +35,7 @@ use num_dual::{Dual2SVec64, hessian};
 use rayon::prelude::*;
 
 use crate::autodiff::{flatten, hinge_angle_generic};
-use crate::error::{EvalError, MeshError};
+use crate::error::EvalError;
 use crate::geometry::TriangleFrame;
 use crate::hinge::{HingeFrames, Stencil, hessian_blocks};
 use crate::mesh::{TriMesh, check_same_vertex_count};
@@ -429,11 +429,19 @@ impl<P: HingePsi> BendingModel<P> {
         out: &mut Evaluation,
     ) -> Result<(), EvalError> {
         check_same_vertex_count(self.n_vertices(), x.len())?;
-        if out.gradient.len() != 3 * self.n_vertices() || out.hessian.len() != self.pattern.nnz() {
-            return Err(EvalError::Mesh(MeshError::VertexCountMismatch {
-                rest: self.n_vertices(),
-                deformed: out.gradient.len() / 3,
-            }));
+        if out.gradient.len() != 3 * self.n_vertices() {
+            return Err(EvalError::BufferLength {
+                buffer: "gradient",
+                expected: 3 * self.n_vertices(),
+                got: out.gradient.len(),
+            });
+        }
+        if out.hessian.len() != self.pattern.nnz() {
+            return Err(EvalError::BufferLength {
+                buffer: "hessian",
+                expected: self.pattern.nnz(),
+                got: out.hessian.len(),
+            });
         }
         if scratch.hinges.len() != self.topology.hinges().len() {
             scratch.hinges = vec![HingeState::default(); self.topology.hinges().len()];
@@ -472,6 +480,7 @@ impl<P: HingePsi> BendingModel<P> {
             states,
             request,
             method,
+            local_only: false,
         };
         let grad: &mut [f64] = if request.gradient {
             &mut out.gradient
@@ -496,6 +505,46 @@ impl<P: HingePsi> BendingModel<P> {
             Parallelism::Rayon => ctx.run_range(&self.partitions, grad, hess),
         }
         Ok(())
+    }
+
+    /// Benchmark instrumentation: the full single-threaded gradient + Hessian computation with every local
+    /// block computed but folded into a returned checksum instead of being written into the matrix. It
+    /// separates arithmetic from assembly (`hinge bench`'s `_local` rows). Gradients are written as usual.
+    ///
+    /// # Errors
+    /// As [`BendingModel::evaluate_into`].
+    pub fn local_blocks_checksum(
+        &self,
+        x: &[Vector3<f64>],
+        method: Method,
+        scratch: &mut Scratch,
+        out: &mut Evaluation,
+    ) -> Result<f64, EvalError> {
+        self.evaluate_into(
+            x,
+            Request::VALUE,
+            method,
+            Parallelism::Sequential,
+            scratch,
+            out,
+        )?;
+        for (i, s) in scratch.hinges.iter_mut().enumerate() {
+            self.hinge_pass(i, x, true, s)?;
+        }
+        let ctx = Ctx {
+            model: self,
+            x,
+            states: &scratch.hinges,
+            request: Request::ALL,
+            method,
+            local_only: true,
+        };
+        let mut sum = 0.0;
+        for p in &self.partitions {
+            let g = &mut out.gradient[3 * p.vertices.start..3 * p.vertices.end];
+            sum += ctx.run_partition(p, g, &mut []);
+        }
+        Ok(sum)
     }
 
     #[inline]
@@ -553,6 +602,7 @@ struct Ctx<'a, P: HingePsi> {
     states: &'a [HingeState],
     request: Request,
     method: Method,
+    local_only: bool,
 }
 
 /// The part of the output one partition owns.
@@ -561,6 +611,9 @@ struct Owned<'a> {
     values_start: usize,
     grad: &'a mut [f64],
     hess: &'a mut [f64],
+    /// Benchmark mode: blocks are folded into `checksum` instead of being written.
+    local_only: bool,
+    checksum: f64,
 }
 
 impl Owned<'_> {
@@ -584,6 +637,10 @@ impl Owned<'_> {
         c: usize,
         b: &Matrix3<f64>,
     ) {
+        if self.local_only {
+            self.checksum += b[(0, 0)] + b[(1, 1)] + b[(2, 2)] + b[(2, 0)];
+            return;
+        }
         if slot == NONE || self.hess.is_empty() {
             return;
         }
@@ -622,7 +679,9 @@ impl<P: HingePsi> Ctx<'_, P> {
     fn run_range(&self, parts: &[Partition], grad: &mut [f64], hess: &mut [f64]) {
         match parts.len() {
             0 => {}
-            1 => self.run_partition(&parts[0], grad, hess),
+            1 => {
+                self.run_partition(&parts[0], grad, hess);
+            }
             n => {
                 let (a, b) = parts.split_at(n / 2);
                 let gsplit = 3 * (b[0].vertices.start - a[0].vertices.start);
@@ -642,7 +701,7 @@ impl<P: HingePsi> Ctx<'_, P> {
         }
     }
 
-    fn run_partition(&self, p: &Partition, grad: &mut [f64], hess: &mut [f64]) {
+    fn run_partition(&self, p: &Partition, grad: &mut [f64], hess: &mut [f64]) -> f64 {
         grad.fill(0.0);
         hess.fill(0.0);
         let mut own = Owned {
@@ -650,6 +709,8 @@ impl<P: HingePsi> Ctx<'_, P> {
             values_start: p.values.start,
             grad,
             hess,
+            local_only: self.local_only,
+            checksum: 0.0,
         };
         match self.method {
             Method::Refactored => {
@@ -663,6 +724,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                 }
             }
         }
+        own.checksum
     }
 
     /// One refactored element: H^Δ (Eq. 7) plus the assigned hinges' outer products and gradients.

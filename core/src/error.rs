@@ -177,6 +177,16 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// An output buffer does not have the length this model needs.
+    #[error("output buffer `{buffer}` has length {got}, expected {expected}")]
+    BufferLength {
+        /// Which buffer.
+        buffer: &'static str,
+        /// Length needed.
+        expected: usize,
+        /// Length given.
+        got: usize,
+    },
     /// ψ, ψ′ or ψ″ is not finite at a hinge (for example the tan energy at θ = ±π).
     #[error("hinge {hinge} (vertices {vertices:?}): the energy is not finite at θ = {theta}")]
     NonFiniteEnergy {

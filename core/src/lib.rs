@@ -28,6 +28,7 @@
 pub mod autodiff;
 pub mod bending;
 pub mod error;
+pub mod export;
 pub mod geometry;
 pub mod grid;
 pub mod hinge;

@@ -393,3 +393,48 @@ fn unrequested_outputs_are_untouched_and_errors_name_the_hinge() {
             .is_err()
     );
 }
+
+#[test]
+fn exports_agree_with_each_other() {
+    let (rest, def) = irregular();
+    let model = BendingModel::new(&rest, ds()).unwrap();
+    let e = model
+        .evaluate(
+            &def,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    let p = model.pattern();
+    let dense = sym_dense(p.col_ptr(), p.row_idx(), &e.hessian);
+    let n = p.dim();
+    // Full CSR holds both triangles, rows sorted, and equals the dense expansion.
+    let (rp, ci, v) = hinge_core::export::full_csr(p, &e.hessian).unwrap();
+    assert_eq!(v.len(), p.nnz_full());
+    let mut from_csr = vec![0.0; n * n];
+    for r in 0..n {
+        assert!(ci[rp[r]..rp[r + 1]].windows(2).all(|w| w[0] < w[1]));
+        for k in rp[r]..rp[r + 1] {
+            from_csr[r * n + ci[k]] = v[k];
+        }
+    }
+    assert_eq!(from_csr, dense);
+    // The faer view holds the same lower triangle.
+    let m = hinge_core::export::faer_lower(p, &e.hessian).unwrap();
+    assert_eq!((m.nrows(), m.ncols()), (n, n));
+    assert_eq!(m.compute_nnz(), p.nnz());
+    assert!(hinge_core::export::faer_lower(p, &e.hessian[1..]).is_err());
+    // Matrix Market text parses back to the values.
+    let mut buf = Vec::new();
+    hinge_core::export::write_matrix_market(&mut buf, p, &e.hessian).unwrap();
+    let text = String::from_utf8(buf).unwrap();
+    assert!(text.starts_with("%%MatrixMarket matrix coordinate real symmetric"));
+    let vals: Vec<f64> = text
+        .lines()
+        .filter(|l| !l.starts_with('%'))
+        .skip(1)
+        .map(|l| l.split_whitespace().nth(2).unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(vals, e.hessian);
+}

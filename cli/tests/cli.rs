@@ -1,0 +1,205 @@
+//! The `hinge` binary: the default job, `hinge eval` round trip, one-line errors with non-zero exit.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::psi::{Stiffness, TanBending};
+
+fn hinge(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_hinge"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("hinge-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn data(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn default_job_exits_zero() {
+    let o = hinge(&[]);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("hinges 19040"));
+}
+
+#[test]
+fn eval_round_trip_matches_the_library() {
+    let dir = tmp("eval");
+    let o = hinge(&[
+        "eval",
+        "--rest",
+        &data("grid80_rest.obj"),
+        "--deformed",
+        &data("grid80_jitter.obj"),
+        "--energy",
+        "tan-bending",
+        "--param",
+        "k=2.5",
+        "--threads",
+        "2",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rest = hinge_core::obj::read_obj(data("grid80_rest.obj")).unwrap();
+    let def = hinge_core::obj::read_obj(data("grid80_jitter.obj")).unwrap();
+    let model = BendingModel::new(
+        &rest,
+        TanBending {
+            k: Stiffness::Uniform(2.5),
+        },
+    )
+    .unwrap();
+    let e = model
+        .evaluate(
+            def.positions(),
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    assert_eq!(
+        json["energy"].as_f64().unwrap(),
+        e.energy,
+        "round-trip precision"
+    );
+    assert_eq!(json["n_hinges"], 19040);
+    assert_eq!(json["threads"], 2);
+    let grad: Vec<f64> = std::fs::read_to_string(dir.join("gradient.txt"))
+        .unwrap()
+        .lines()
+        .map(|l| l.parse().unwrap())
+        .collect();
+    assert_eq!(grad, e.gradient);
+    let mtx = std::fs::read_to_string(dir.join("hessian.mtx")).unwrap();
+    let mut lines = mtx.lines().filter(|l| !l.starts_with('%'));
+    let header: Vec<usize> = lines
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .map(|w| w.parse().unwrap())
+        .collect();
+    assert_eq!(header, vec![3 * 6561, 3 * 6561, model.pattern().nnz()]);
+    let (cp, ri) = (model.pattern().col_ptr(), model.pattern().row_idx());
+    let mut k = 0;
+    for c in 0..cp.len() - 1 {
+        for q in cp[c]..cp[c + 1] {
+            let w: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+            assert_eq!(w[0].parse::<usize>().unwrap(), ri[q] + 1);
+            assert_eq!(w[1].parse::<usize>().unwrap(), c + 1);
+            assert_eq!(w[2].parse::<f64>().unwrap(), e.hessian[k]);
+            k += 1;
+        }
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn bad_input_is_one_line_and_nonzero() {
+    let dir = tmp("bad");
+    let bad_obj = dir.join("bad.obj");
+    std::fs::write(&bad_obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n").unwrap();
+    let other = dir.join("other.obj");
+    std::fs::write(
+        &other,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n",
+    )
+    .unwrap();
+    let out = dir.to_str().unwrap();
+    let rest = data("grid80_rest.obj");
+    let cases: Vec<Vec<&str>> = vec![
+        vec![
+            "eval",
+            "--rest",
+            "/nonexistent.obj",
+            "--energy",
+            "discrete-shells",
+            "--out",
+            out,
+        ],
+        vec![
+            "eval",
+            "--rest",
+            bad_obj.to_str().unwrap(),
+            "--energy",
+            "discrete-shells",
+            "--out",
+            out,
+        ],
+        vec!["eval", "--rest", &rest, "--energy", "nope", "--out", out],
+        vec![
+            "eval",
+            "--rest",
+            &rest,
+            "--energy",
+            "discrete-shells",
+            "--param",
+            "q=1",
+            "--out",
+            out,
+        ],
+        vec![
+            "eval",
+            "--rest",
+            &rest,
+            "--energy",
+            "discrete-shells",
+            "--param",
+            "k=abc",
+            "--out",
+            out,
+        ],
+        vec![
+            "eval",
+            "--rest",
+            &rest,
+            "--deformed",
+            other.to_str().unwrap(),
+            "--energy",
+            "discrete-shells",
+            "--out",
+            out,
+        ],
+        vec![
+            "eval",
+            "--rest",
+            &rest,
+            "--energy",
+            "discrete-shells",
+            "--method",
+            "magic",
+            "--out",
+            out,
+        ],
+        vec!["stats", "--rest", bad_obj.to_str().unwrap()],
+    ];
+    for args in cases {
+        let o = hinge(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?} should fail");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.starts_with("hinge: "), "{err}");
+        assert!(!err.contains("panicked"));
+    }
+    let o = hinge(&["eval", "--list-energies"]);
+    assert!(o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .any(|l| l.starts_with("tan-bending"))
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

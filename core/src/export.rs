@@ -1,0 +1,126 @@
+//! Exporting an assembled Hessian: full CSR arrays, a faer sparse matrix view, Matrix Market files, and the
+//! gradient as text. Values always come from [`crate::pattern::SymmetricPattern`]'s lower-triangle CSC order.
+
+use std::io::Write;
+
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+
+use crate::error::EvalError;
+use crate::pattern::SymmetricPattern;
+
+fn check_len(pattern: &SymmetricPattern, values: &[f64]) -> Result<(), EvalError> {
+    if values.len() == pattern.nnz() {
+        Ok(())
+    } else {
+        Err(EvalError::BufferLength {
+            buffer: "hessian",
+            expected: pattern.nnz(),
+            got: values.len(),
+        })
+    }
+}
+
+/// The lower triangle as a faer sparse matrix view (no copy), the input faer's sparse Cholesky takes with
+/// `Side::Lower`.
+///
+/// # Errors
+/// [`EvalError::BufferLength`] when `values` does not fit the pattern.
+pub fn faer_lower<'a>(
+    pattern: &'a SymmetricPattern,
+    values: &'a [f64],
+) -> Result<SparseColMatRef<'a, usize, f64>, EvalError> {
+    check_len(pattern, values)?;
+    let n = pattern.dim();
+    let symbolic =
+        SymbolicSparseColMatRef::new_checked(n, n, pattern.col_ptr(), None, pattern.row_idx());
+    Ok(SparseColMatRef::new(symbolic, values))
+}
+
+/// The full symmetric matrix (both triangles) as CSR arrays `(row_ptr, col_idx, values)`, columns sorted.
+///
+/// # Errors
+/// [`EvalError::BufferLength`] when `values` does not fit the pattern.
+pub fn full_csr(
+    pattern: &SymmetricPattern,
+    values: &[f64],
+) -> Result<(Vec<usize>, Vec<usize>, Vec<f64>), EvalError> {
+    check_len(pattern, values)?;
+    let n = pattern.dim();
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    // Row r of the full matrix = column r of the lower part (entries below/at the diagonal, as upper) plus row
+    // r of the lower part. Count, then fill in column order so each row comes out sorted.
+    let mut count = vec![0usize; n + 1];
+    for c in 0..n {
+        for &r in &ri[cp[c]..cp[c + 1]] {
+            count[r + 1] += 1;
+            if r != c {
+                count[c + 1] += 1;
+            }
+        }
+    }
+    for i in 0..n {
+        count[i + 1] += count[i];
+    }
+    let row_ptr = count.clone();
+    let mut next = count;
+    let mut col_idx = vec![0usize; row_ptr[n]];
+    let mut vals = vec![0.0; row_ptr[n]];
+    // Entries (r, c) with c ≤ r, visited by increasing c: row r receives its columns in increasing order
+    // for c < r; row c receives (c, r') for r' ≥ c after all its smaller columns. Two passes keep order.
+    for c in 0..n {
+        for k in cp[c]..cp[c + 1] {
+            let r = ri[k];
+            // (r, c) in row r: columns c < r arrive in increasing c.
+            let slot = next[r];
+            col_idx[slot] = c;
+            vals[slot] = values[k];
+            next[r] += 1;
+        }
+        for k in cp[c]..cp[c + 1] {
+            let r = ri[k];
+            if r != c {
+                // (c, r) in row c: after the diagonal, rows increasing.
+                let slot = next[c];
+                col_idx[slot] = r;
+                vals[slot] = values[k];
+                next[c] += 1;
+            }
+        }
+    }
+    Ok((row_ptr, col_idx, vals))
+}
+
+/// Writes the lower triangle as Matrix Market `coordinate real symmetric`, 1-based, 17 significant digits.
+///
+/// # Errors
+/// I/O errors of the writer; `InvalidInput` when `values` does not fit the pattern.
+pub fn write_matrix_market(
+    mut out: impl Write,
+    pattern: &SymmetricPattern,
+    values: &[f64],
+) -> std::io::Result<()> {
+    check_len(pattern, values)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
+    let n = pattern.dim();
+    writeln!(out, "%%MatrixMarket matrix coordinate real symmetric")?;
+    writeln!(out, "% hinge: lower triangle of the energy Hessian")?;
+    writeln!(out, "{n} {n} {}", pattern.nnz())?;
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    for c in 0..n {
+        for k in cp[c]..cp[c + 1] {
+            writeln!(out, "{} {} {:.16e}", ri[k] + 1, c + 1, values[k])?;
+        }
+    }
+    out.flush()
+}
+
+/// Writes a vector one value per line with 17 significant digits.
+///
+/// # Errors
+/// I/O errors of the writer.
+pub fn write_vector(mut out: impl Write, values: &[f64]) -> std::io::Result<()> {
+    for v in values {
+        writeln!(out, "{v:.16e}")?;
+    }
+    out.flush()
+}
