@@ -36,14 +36,14 @@ pub fn faer_lower<'a>(
     Ok(SparseColMatRef::new(symbolic, values))
 }
 
+/// CSR arrays `(row_ptr, col_idx, values)`.
+pub type CsrArrays = (Vec<usize>, Vec<usize>, Vec<f64>);
+
 /// The full symmetric matrix (both triangles) as CSR arrays `(row_ptr, col_idx, values)`, columns sorted.
 ///
 /// # Errors
 /// [`EvalError::BufferLength`] when `values` does not fit the pattern.
-pub fn full_csr(
-    pattern: &SymmetricPattern,
-    values: &[f64],
-) -> Result<(Vec<usize>, Vec<usize>, Vec<f64>), EvalError> {
+pub fn full_csr(pattern: &SymmetricPattern, values: &[f64]) -> Result<CsrArrays, EvalError> {
     check_len(pattern, values)?;
     let n = pattern.dim();
     let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());

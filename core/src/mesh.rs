@@ -54,7 +54,7 @@ impl TriMesh {
     /// # Errors
     /// As [`TriMesh::new`], and [`MeshError::FlatLength`] when the coordinate count is not a multiple of 3.
     pub fn from_flat(coordinates: &[f64], triangles: &[[u32; 3]]) -> Result<Self, MeshError> {
-        if coordinates.len() % 3 != 0 {
+        if !coordinates.len().is_multiple_of(3) {
             return Err(MeshError::FlatLength {
                 len: coordinates.len(),
             });

@@ -265,8 +265,8 @@ proptest! {
     ) {
         let n = coords.len() / 3;
         let positions: Vec<_> = (0..n).map(|i| Vector3::new(coords[3*i], coords[3*i+1], coords[3*i+2])).collect();
-        if let Ok(mesh) = TriMesh::new(positions, tris) {
-            if let Ok(topo) = Topology::new(mesh.n_vertices(), mesh.triangles()) {
+        if let Ok(mesh) = TriMesh::new(positions, tris)
+            && let Ok(topo) = Topology::new(mesh.n_vertices(), mesh.triangles()) {
                 for h in topo.hinges() {
                     let x = h.vertices.map(|v| mesh.positions()[v]);
                     if let Ok(d) = hinge_core::hinge::hinge_angle_hessian(&x) {
@@ -274,7 +274,6 @@ proptest! {
                         prop_assert!(d.hessian.iter().all(|v| v.is_finite()));
                     }
                 }
-            }
         }
     }
 }
