@@ -89,17 +89,7 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
     let k = parse_params(energy, &args.params)?;
     let rest = obj::read_obj(rest_path).map_err(|e| e.to_string())?;
     let deformed = match &args.deformed {
-        Some(p) => {
-            let d = obj::read_obj(p).map_err(|e| e.to_string())?;
-            if d.triangles() != rest.triangles() {
-                return Err(format!(
-                    "{}: its triangles differ from the rest mesh's",
-                    p.display()
-                ));
-            }
-            rest.with_positions(d.into_parts().0)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
+        Some(p) => crate::read_deformed(&rest, p)?,
         None => rest.clone(),
     };
     let threads = args
@@ -112,29 +102,18 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .num_threads(threads)
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
+    let k = Stiffness::Uniform(k);
+    let ctx = EvalCtx {
+        rest: &rest,
+        deformed: &deformed,
+        method,
+        pool: &pool,
+        threads,
+        out,
+    };
     match energy.as_str() {
-        "discrete-shells" => eval_with(
-            DiscreteShells {
-                k: Stiffness::Uniform(k),
-            },
-            &rest,
-            &deformed,
-            method,
-            &pool,
-            threads,
-            out,
-        ),
-        "tan-bending" => eval_with(
-            TanBending {
-                k: Stiffness::Uniform(k),
-            },
-            &rest,
-            &deformed,
-            method,
-            &pool,
-            threads,
-            out,
-        ),
+        "discrete-shells" => ctx.eval(DiscreteShells { k }),
+        "tan-bending" => ctx.eval(TanBending { k }),
         other => Err(format!(
             "unknown energy `{other}` (known: {})",
             ENERGIES.map(|e| e.0).join(", ")
@@ -142,44 +121,55 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
     }
 }
 
-fn eval_with<P: HingePsi>(
-    psi: P,
-    rest: &TriMesh,
-    deformed: &TriMesh,
+struct EvalCtx<'a> {
+    rest: &'a TriMesh,
+    deformed: &'a TriMesh,
     method: Method,
-    pool: &rayon::ThreadPool,
+    pool: &'a rayon::ThreadPool,
     threads: usize,
-    out: &std::path::Path,
-) -> Result<(), String> {
-    let model = BendingModel::new(rest, psi).map_err(|e| format!("rest mesh: {e}"))?;
-    let e = pool
-        .install(|| {
-            model.evaluate(
-                deformed.positions(),
-                Request::ALL,
-                method,
-                Parallelism::Rayon,
-            )
-        })
-        .map_err(|e| format!("deformed mesh: {e}"))?;
-    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-    let write =
-        |name: &str, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
-            let path = out.join(name);
-            let file =
-                std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-            f(std::io::BufWriter::new(file)).map_err(|e| format!("{}: {e}", path.display()))
-        };
-    write("gradient.txt", &|w| export::write_vector(w, &e.gradient))?;
-    write("hessian.mtx", &|w| {
-        export::write_matrix_market(w, model.pattern(), &e.hessian)
-    })?;
-    println!(
-        "{{\"energy\": {:?}, \"method\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {}}}",
-        e.energy,
-        method.name(),
-        model.n_vertices(),
-        model.topology().hinges().len()
-    );
-    Ok(())
+    out: &'a std::path::Path,
+}
+
+impl EvalCtx<'_> {
+    fn eval<P: HingePsi>(&self, psi: P) -> Result<(), String> {
+        let (rest, deformed, method, pool, threads, out) = (
+            self.rest,
+            self.deformed,
+            self.method,
+            self.pool,
+            self.threads,
+            self.out,
+        );
+        let model = BendingModel::new(rest, psi).map_err(|e| format!("rest mesh: {e}"))?;
+        let e = pool
+            .install(|| {
+                model.evaluate(
+                    deformed.positions(),
+                    Request::ALL,
+                    method,
+                    Parallelism::Rayon,
+                )
+            })
+            .map_err(|e| format!("deformed mesh: {e}"))?;
+        std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+        let write =
+            |name: &str, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
+                let path = out.join(name);
+                let file =
+                    std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+                f(std::io::BufWriter::new(file)).map_err(|e| format!("{}: {e}", path.display()))
+            };
+        write("gradient.txt", &|w| export::write_vector(w, &e.gradient))?;
+        write("hessian.mtx", &|w| {
+            export::write_matrix_market(w, model.pattern(), &e.hessian)
+        })?;
+        println!(
+            "{{\"energy\": {:?}, \"method\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {}}}",
+            e.energy,
+            method.name(),
+            model.n_vertices(),
+            model.topology().hinges().len()
+        );
+        Ok(())
+    }
 }

@@ -62,6 +62,19 @@ fn main() -> ExitCode {
     }
 }
 
+/// Reads a deformed state of `rest` from an OBJ file with the same triangles.
+pub(crate) fn read_deformed(rest: &TriMesh, path: &std::path::Path) -> Result<TriMesh, String> {
+    let d = obj::read_obj(path).map_err(|e| e.to_string())?;
+    if d.triangles() != rest.triangles() {
+        return Err(format!(
+            "{}: its triangles differ from the rest mesh's",
+            path.display()
+        ));
+    }
+    rest.with_positions(d.into_parts().0)
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
 fn stats(
     rest: Option<std::path::PathBuf>,
     deformed: Option<std::path::PathBuf>,
@@ -78,17 +91,7 @@ fn stats(
         ),
     };
     let current: TriMesh = match (&deformed, &rest) {
-        (Some(p), _) => {
-            let d = obj::read_obj(p).map_err(|e| e.to_string())?;
-            if d.triangles() != mesh.triangles() {
-                return Err(format!(
-                    "{}: triangles differ from the rest mesh",
-                    p.display()
-                ));
-            }
-            mesh.with_positions(d.into_parts().0)
-                .map_err(|e| format!("{}: {e}", p.display()))?
-        }
+        (Some(p), _) => read_deformed(&mesh, p)?,
         (None, Some(_)) => mesh.clone(),
         (None, None) => mesh
             .with_positions(grid::wave(mesh.positions()))
