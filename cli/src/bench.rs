@@ -21,6 +21,9 @@ pub struct BenchArgs {
     /// Cells per side of the grids (default 80 and 400, i.e. 81×81 and 401×401 vertices).
     #[arg(long, value_delimiter = ',', default_values_t = [80usize, 400])]
     sizes: Vec<usize>,
+    /// Only the rows whose method name is listed (default: all rows).
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
 }
 
 struct Row {
@@ -31,19 +34,24 @@ struct Row {
     median_ms: f64,
 }
 
-fn median_ms(runs: usize, mut f: impl FnMut() -> Result<(), String>) -> Result<f64, String> {
-    f()?; // warm-up
-    let mut t = Vec::with_capacity(runs);
-    for _ in 0..runs {
-        let start = Instant::now();
-        f()?;
-        t.push(start.elapsed().as_secs_f64() * 1e3);
-    }
-    t.sort_by(f64::total_cmp);
-    Ok(t[t.len() / 2])
+/// One timed row of the benchmark.
+#[derive(Clone, Copy)]
+enum Kind {
+    /// A full evaluation (energy, gradient, Hessian, assembly) with this method and thread count.
+    Full(Method, usize),
+    /// Local blocks computed, nothing written into the matrix.
+    Local(Method),
+    /// Every value slot written once.
+    WriteFloor,
 }
 
-/// Runs `hinge bench`.
+fn median(mut t: Vec<f64>) -> f64 {
+    t.sort_by(f64::total_cmp);
+    t[t.len() / 2]
+}
+
+/// Runs `hinge bench`. Rows are interleaved (one run of each row per round) so that machine noise hits all
+/// methods alike and the ratios printed at the end compare like with like.
 pub fn run(args: BenchArgs) -> Result<(), String> {
     let runs = args.runs.max(5);
     let all = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -54,91 +62,78 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .map_err(|e| format!("thread pool: {e}"))
     };
     let (one, many) = (pool(1)?, pool(all)?);
+    let wanted = |name: &str| args.only.is_empty() || args.only.iter().any(|o| o == name);
+    let mut kinds = vec![
+        ("refactored", Kind::Full(Method::Refactored, 1)),
+        ("per_hinge", Kind::Full(Method::PerHinge, 1)),
+        ("autodiff", Kind::Full(Method::Autodiff, 1)),
+        ("refactored", Kind::Full(Method::Refactored, all)),
+        ("refactored_local", Kind::Local(Method::Refactored)),
+        ("per_hinge_local", Kind::Local(Method::PerHinge)),
+        ("write_floor", Kind::WriteFloor),
+    ];
+    kinds.retain(|(name, _)| wanted(name));
     let mut rows = Vec::new();
     for &n in &args.sizes {
         let rest = unit_grid(n).map_err(|e| e.to_string())?;
         let x = wave(rest.positions());
-        let model = BendingModel::new(
-            &rest,
-            DiscreteShells {
-                k: Stiffness::Uniform(1.0),
-            },
-        )
-        .map_err(|e| e.to_string())?;
+        let model = BendingModel::new(&rest, DiscreteShells { k: Stiffness::Uniform(1.0) }).map_err(|e| e.to_string())?;
         let (nv, nh) = (model.n_vertices(), model.topology().hinges().len());
         let mut out = model.new_output();
         let mut scratch = model.new_scratch();
-        let mut push = |method: &str, threads: usize, ms: f64| {
-            rows.push(Row {
-                method: method.to_string(),
-                threads,
-                n_vertices: nv,
-                n_hinges: nh,
-                median_ms: ms,
-            })
-        };
-        let mut reference: Option<Vec<f64>> = None;
-        for (method, threads) in [
-            (Method::Refactored, 1),
-            (Method::PerHinge, 1),
-            (Method::Autodiff, 1),
-            (Method::Refactored, all),
-        ] {
-            let p = if threads == 1 { &one } else { &many };
-            let r = if method == Method::Autodiff { 5 } else { runs };
-            let ms = median_ms(r, || {
-                p.install(|| {
-                    model.evaluate_into(
-                        &x,
-                        Request::ALL,
-                        method,
-                        Parallelism::Rayon,
-                        &mut scratch,
-                        &mut out,
-                    )
-                })
-                .map_err(|e| e.to_string())
-            })?;
-            push(method.name(), threads, ms);
-            if method == Method::Refactored {
-                // Bitwise identity across thread counts, checked on the benchmark itself.
-                match &reference {
-                    None => reference = Some(out.hessian.clone()),
-                    Some(h) => {
-                        if h.iter()
-                            .zip(&out.hessian)
-                            .any(|(a, b)| a.to_bits() != b.to_bits())
-                        {
-                            return Err(format!(
-                                "{threads}-thread Hessian differs from the 1-thread one"
-                            ));
+        let mut one_thread_hessian: Option<Vec<f64>> = None;
+        let mut times = vec![Vec::new(); kinds.len()];
+        for round in 0..=runs {
+            for (i, &(_, kind)) in kinds.iter().enumerate() {
+                // num-dual is ~10 µs per hinge: five timed runs of it are enough.
+                if matches!(kind, Kind::Full(Method::Autodiff, _)) && round > 5 {
+                    continue;
+                }
+                let start = Instant::now();
+                match kind {
+                    Kind::Full(method, threads) => {
+                        let p = if threads == 1 { &one } else { &many };
+                        p.install(|| model.evaluate_into(&x, Request::ALL, method, Parallelism::Rayon, &mut scratch, &mut out))
+                            .map_err(|e| e.to_string())?;
+                    }
+                    Kind::Local(method) => {
+                        let sum = model
+                            .local_blocks_checksum(&x, method, &mut scratch, &mut out)
+                            .map_err(|e| e.to_string())?;
+                        std::hint::black_box(sum);
+                    }
+                    Kind::WriteFloor => {
+                        for v in out.hessian.iter_mut() {
+                            *v = std::hint::black_box(1.0);
                         }
+                        std::hint::black_box(&out.hessian);
+                    }
+                }
+                let t = start.elapsed().as_secs_f64() * 1e3;
+                if round > 0 {
+                    times[i].push(t); // round 0 is the warm-up
+                }
+                if let Kind::Full(Method::Refactored, threads) = kind {
+                    // Bitwise identity across thread counts, checked on the benchmark itself.
+                    match &one_thread_hessian {
+                        None => one_thread_hessian = Some(out.hessian.clone()),
+                        Some(h) if h.iter().zip(&out.hessian).any(|(a, b)| a.to_bits() != b.to_bits()) => {
+                            return Err(format!("the {threads}-thread Hessian differs from the 1-thread one"));
+                        }
+                        Some(_) => {}
                     }
                 }
             }
         }
-        for (name, method) in [
-            ("refactored_local", Method::Refactored),
-            ("per_hinge_local", Method::PerHinge),
-        ] {
-            let mut sink = 0.0;
-            let ms = median_ms(runs, || {
-                sink += model
-                    .local_blocks_checksum(&x, method, &mut scratch, &mut out)
-                    .map_err(|e| e.to_string())?;
-                Ok(())
-            })?;
-            std::hint::black_box(sink);
-            push(name, 1, ms);
+        for (i, &(name, kind)) in kinds.iter().enumerate() {
+            rows.push(Row {
+                method: name.to_string(),
+                threads: if let Kind::Full(_, t) = kind { t } else { 1 },
+                n_vertices: nv,
+                n_hinges: nh,
+                median_ms: median(std::mem::take(&mut times[i])),
+            });
         }
-        let ms = median_ms(runs, || {
-            for v in out.hessian.iter_mut() {
-                *v = std::hint::black_box(1.0);
-            }
-            std::hint::black_box(&out.hessian);
-            Ok(())
-        })?;
-        push("write_floor", 1, ms);
     }
     println!(
         "{:<18} {:>7} {:>10} {:>9} {:>12} {:>12}",

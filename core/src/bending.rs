@@ -37,7 +37,7 @@ use rayon::prelude::*;
 use crate::autodiff::{flatten, hinge_angle_generic};
 use crate::error::EvalError;
 use crate::geometry::TriangleFrame;
-use crate::hinge::{HingeFrames, Stencil, hessian_blocks};
+use crate::hinge::{HingeFrames, Stencil, hessian_blocks, theta_and_gradient};
 use crate::mesh::{TriMesh, check_same_vertex_count};
 use crate::pattern::SymmetricPattern;
 use crate::psi::{HingePsi, RestHinge};
@@ -138,6 +138,11 @@ struct HingeState {
 
 const NONE: u32 = u32::MAX;
 
+/// Where a local block goes: the value offsets of its three columns (`[NONE; 3]` for a block the pattern
+/// does not hold). Stored per element so that adding a block reads no other table.
+type Slot = [u32; 3];
+const NO_SLOT: Slot = [NONE; 3];
+
 /// A hinge energy bound to a mesh: rest data, per-hinge parameters, the sparsity pattern, per-element slots
 /// and the partition of the work, all computed once.
 #[derive(Debug, Clone)]
@@ -151,9 +156,11 @@ pub struct BendingModel<P: HingePsi> {
     tri_elements: Vec<u32>,
     /// Per refactored element: 6 own block slots (00, 11, 22, 01, 12, 20 by corner) and 4 x3 slots for each
     /// corner whose edge is the element's assigned hinge (x3x3, x3x0, x3x1, x3x2).
-    tri_slots: Vec<[u32; 18]>,
+    tri_slots: Vec<[Slot; 18]>,
+    /// Per refactored element: the hinge on each of its edges (NONE on the boundary).
+    tri_hinges: Vec<[u32; 3]>,
     /// Per hinge: 10 block slots (00, 11, 22, 33, 10, 20, 30, 21, 31, 32).
-    hinge_slots: Vec<[u32; 10]>,
+    hinge_slots: Vec<[Slot; 10]>,
     /// Hinge index of each edge (NONE on the boundary).
     edge_hinge: Vec<u32>,
     partitions: Vec<Partition>,
@@ -232,14 +239,14 @@ impl<P: HingePsi> BendingModel<P> {
             );
         }
         let pattern = SymmetricPattern::new(n, pairs);
-        let slot = |a: usize, b: usize| pattern.find(a, b).map_or(NONE, |s| s as u32);
+        let slot = |a: usize, b: usize| pattern.find(a, b).map_or(NO_SLOT, |s| pattern.blocks()[s].offset);
         let bits = topology.orientation_bits();
         let tri_slots = tri_elements
             .iter()
             .map(|&t| {
                 let t = t as usize;
                 let v = tris[t];
-                let mut s = [NONE; 18];
+                let mut s = [NO_SLOT; 18];
                 s[..6].copy_from_slice(&[
                     slot(v[0], v[0]),
                     slot(v[1], v[1]),
@@ -283,6 +290,10 @@ impl<P: HingePsi> BendingModel<P> {
                 ]
             })
             .collect();
+        let tri_hinges = tri_elements
+            .iter()
+            .map(|&t| topology.triangle_edges()[t as usize].map(|e| edge_hinge[e]))
+            .collect();
         let mut model = Self {
             psi,
             topology,
@@ -290,6 +301,7 @@ impl<P: HingePsi> BendingModel<P> {
             params,
             pattern,
             tri_elements,
+            tri_hinges,
             tri_slots,
             hinge_slots,
             edge_hinge,
@@ -557,13 +569,12 @@ impl<P: HingePsi> BendingModel<P> {
     ) -> Result<(), EvalError> {
         let h = &self.topology.hinges()[i];
         let st: Stencil = h.vertices.map(|v| x[v]);
-        let f = HingeFrames::new(&st).map_err(|source| EvalError::Hinge {
+        let (theta, grad) = theta_and_gradient(&st).map_err(|source| EvalError::Hinge {
             hinge: i,
             edge: h.edge,
             vertices: h.vertices,
             source,
         })?;
-        let theta = f.theta();
         let [psi, dpsi, d2psi] = self.psi.eval(&self.params[i], theta);
         if !(psi.is_finite() && dpsi.is_finite() && d2psi.is_finite()) {
             return Err(EvalError::NonFiniteEnergy {
@@ -576,7 +587,7 @@ impl<P: HingePsi> BendingModel<P> {
         s.dpsi = dpsi;
         s.d2psi = d2psi;
         if need_grad {
-            s.grad = f.gradient();
+            s.grad = grad;
         }
         Ok(())
     }
@@ -608,7 +619,8 @@ struct Ctx<'a, P: HingePsi> {
 /// The part of the output one partition owns.
 struct Owned<'a> {
     vertices: std::ops::Range<usize>,
-    values_start: usize,
+    /// Owned value offsets (empty when the Hessian is not requested).
+    values: std::ops::Range<usize>,
     grad: &'a mut [f64],
     hess: &'a mut [f64],
     /// Benchmark mode: blocks are folded into `checksum` instead of being written.
@@ -627,49 +639,44 @@ impl Owned<'_> {
         }
     }
 
-    /// Adds block `b` for (row vertex `r`, column vertex `c`) at `slot`.
-    #[inline]
-    fn add_block(
-        &mut self,
-        pattern: &SymmetricPattern,
-        slot: u32,
-        r: usize,
-        c: usize,
-        b: &Matrix3<f64>,
-    ) {
+    /// Adds block `b` for (row vertex `r`, column vertex `c`) at `slot`, if this partition owns it.
+    #[inline(always)]
+    fn add_block(&mut self, slot: &Slot, r: usize, c: usize, b: &Matrix3<f64>) {
         if self.local_only {
             self.checksum += b[(0, 0)] + b[(1, 1)] + b[(2, 2)] + b[(2, 0)];
             return;
         }
-        if slot == NONE || self.hess.is_empty() {
+        let first = slot[0] as usize;
+        // A block's three columns lie in one block column, so its first offset decides ownership. NONE
+        // (a block the pattern does not hold) and an empty Hessian (not requested) fall outside too.
+        if first < self.values.start || first >= self.values.end {
             return;
         }
-        let s = &pattern.blocks()[slot as usize];
-        if !self.vertices.contains(&(s.col as usize)) {
-            return;
-        }
-        let base = self.values_start;
+        let base = self.values.start;
         if r == c {
             for cc in 0..3 {
-                let o = s.offset[cc] as usize - base;
-                for rr in cc..3 {
-                    self.hess[o + rr - cc] += b[(rr, cc)];
+                let o = slot[cc] as usize - base;
+                let dst = &mut self.hess[o..o + 3 - cc];
+                for (k, rr) in (cc..3).enumerate() {
+                    dst[k] += b[(rr, cc)];
                 }
             }
         } else if r > c {
             for cc in 0..3 {
-                let o = s.offset[cc] as usize - base;
-                self.hess[o] += b[(0, cc)];
-                self.hess[o + 1] += b[(1, cc)];
-                self.hess[o + 2] += b[(2, cc)];
+                let o = slot[cc] as usize - base;
+                let dst = &mut self.hess[o..o + 3];
+                dst[0] += b[(0, cc)];
+                dst[1] += b[(1, cc)];
+                dst[2] += b[(2, cc)];
             }
         } else {
             // Stored block is (c, r) = bᵀ.
             for cc in 0..3 {
-                let o = s.offset[cc] as usize - base;
-                self.hess[o] += b[(cc, 0)];
-                self.hess[o + 1] += b[(cc, 1)];
-                self.hess[o + 2] += b[(cc, 2)];
+                let o = slot[cc] as usize - base;
+                let dst = &mut self.hess[o..o + 3];
+                dst[0] += b[(cc, 0)];
+                dst[1] += b[(cc, 1)];
+                dst[2] += b[(cc, 2)];
             }
         }
     }
@@ -706,7 +713,7 @@ impl<P: HingePsi> Ctx<'_, P> {
         hess.fill(0.0);
         let mut own = Owned {
             vertices: p.vertices.clone(),
-            values_start: p.values.start,
+            values: if hess.is_empty() { 0..0 } else { p.values.clone() },
             grad,
             hess,
             local_only: self.local_only,
@@ -734,9 +741,8 @@ impl<P: HingePsi> Ctx<'_, P> {
         let t = m.tri_elements[e] as usize;
         let v = m.topology.triangles()[t];
         let slots = &m.tri_slots[e];
-        let edges = m.topology.triangle_edges()[t];
         let bits = m.topology.orientation_bits()[t];
-        let hid = edges.map(|ed| m.edge_hinge[ed]);
+        let hid = m.tri_hinges[e];
         let assigned = |k: usize| hid[k] != NONE && bits >> k & 1 == 1;
         if self.request.gradient {
             for k in 0..3 {
@@ -764,25 +770,29 @@ impl<P: HingePsi> Ctx<'_, P> {
             }
         });
         let cs = &f.cos_angle;
-        let d = [0, 1, 2]
-            .map(|i| c[(i + 2) % 3] * cs[(i + 1) % 3] + c[(i + 1) % 3] * cs[(i + 2) % 3] - c[i]);
-        let mm = [0, 1, 2].map(|i| f.normal * f.edge_normal[i].transpose());
-        let r = [0, 1, 2].map(|i| mm[i] * (c[i] * f.inv_length_sq[i]));
+        let d = [0, 1, 2].map(|i| c[(i + 2) % 3] * cs[(i + 1) % 3] + c[(i + 1) % 3] * cs[(i + 2) % 3] - c[i]);
+        // Every term of Eq. 7 is a rank-one n ⊗ m_k or m_k ⊗ n, so each block is n pᵀ + q nᵀ for two vectors
+        // p, q: M_i = n m_iᵀ, R_i = (c_i / l_i²) n m_iᵀ.
+        let n = f.normal;
+        let en = &f.edge_normal;
+        let r = [0, 1, 2].map(|i| c[i] * f.inv_length_sq[i]);
         let ih = &f.inv_altitude;
         let mut blk = [Matrix3::zeros(); 6];
         for i in 0..3 {
             let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
-            let w = ih[i] * ih[i];
-            let s = mm[i] * (w * d[i]);
-            blk[i] = s + s.transpose() - r[i1] - r[i2];
+            let q = en[i] * (ih[i] * ih[i] * d[i]);
+            let p = q - en[i1] * r[i1] - en[i2] * r[i2];
+            blk[i] = n * p.transpose() + q * n.transpose();
             let w = ih[i] * ih[i1];
+            let mut left = en[i1] * (w * d[i]);
+            let mut right = en[i] * (w * d[i1]);
             // † transposes R_{i+2} in the lower triangle T̃ of edge i+2's hinge (orientation bit clear).
-            let ri2 = if bits >> i2 & 1 == 1 {
-                r[i2]
+            if bits >> i2 & 1 == 1 {
+                right += en[i2] * r[i2];
             } else {
-                r[i2].transpose()
-            };
-            blk[3 + i] = mm[i1].transpose() * (w * d[i]) + mm[i] * (w * d[i1]) + ri2;
+                left += en[i2] * r[i2];
+            }
+            blk[3 + i] = n * right.transpose() + left * n.transpose();
         }
         // ψ″ ∇θ∇θᵀ of the assigned hinges.
         if !P::D2_IS_ZERO {
@@ -809,16 +819,14 @@ impl<P: HingePsi> Ctx<'_, P> {
                 let hv = m.topology.hinges()[hid[k] as usize].vertices;
                 let x3 = hv[3];
                 own.add_block(
-                    &m.pattern,
-                    slots[6 + 4 * k],
+                    &slots[6 + 4 * k],
                     x3,
                     x3,
                     &(g[3] * gr[3].transpose()),
                 );
                 for a in 0..3 {
                     own.add_block(
-                        &m.pattern,
-                        slots[7 + 4 * k + a],
+                        &slots[7 + 4 * k + a],
                         x3,
                         hv[a],
                         &(g[3] * gr[a].transpose()),
@@ -827,9 +835,9 @@ impl<P: HingePsi> Ctx<'_, P> {
             }
         }
         for i in 0..3 {
-            own.add_block(&m.pattern, slots[i], v[i], v[i], &blk[i]);
+            own.add_block(&slots[i], v[i], v[i], &blk[i]);
             let i1 = (i + 1) % 3;
-            own.add_block(&m.pattern, slots[3 + i], v[i], v[i1], &blk[3 + i]);
+            own.add_block(&slots[3 + i], v[i], v[i1], &blk[3 + i]);
         }
     }
 
@@ -873,7 +881,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                 if self.request.hessian {
                     for (q, &(a, b)) in PAIRS.iter().enumerate() {
                         let blk: Matrix3<f64> = hm.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
-                        own.add_block(&m.pattern, slots[q], hv[a], hv[b], &blk);
+                        own.add_block(&slots[q], hv[a], hv[b], &blk);
                     }
                 }
             }
@@ -900,7 +908,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                     if !P::D2_IS_ZERO {
                         blk += (g[a] * s.d2psi) * g[b].transpose();
                     }
-                    own.add_block(&m.pattern, slots[q], hv[a], hv[b], &blk);
+                    own.add_block(&slots[q], hv[a], hv[b], &blk);
                 }
             }
         }

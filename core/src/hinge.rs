@@ -183,6 +183,64 @@ pub fn tan_half_angle(x: &Stencil) -> Result<f64, StencilError> {
     Ok(sign * (n - nt).norm() / (n + nt).norm())
 }
 
+/// θ and ∇θ by Eq. 4 rewritten without unit vectors — the fast path of the assembly engine.
+///
+/// With `u = (x1 − x0) × (x2 − x0)` (`|u| = 2A`), `v = (x2 − x3) × (x1 − x3)` (`|v| = 2Ã`), `e0 = x2 − x1`
+/// and `l0 = |e0|`, the Eq. 4 coefficients become dot products: `1/h0 = l0/|u|`,
+/// `cos α2 / h1 = (x0 − x2)·(x1 − x2) / (l0 |u|)`, `cos α1 / h2 = (x0 − x1)·(x2 − x1) / (l0 |u|)`, so
+///
+/// ```text
+/// ∇x0 θ = −l0 u/|u|²                        ∇x3 θ = −l0 v/|v|²
+/// ∇x1 θ = ((x0−x2)·(x1−x2)) u/(l0|u|²) + ((x3−x2)·(x1−x2)) v/(l0|v|²)
+/// ∇x2 θ = ((x0−x1)·(x2−x1)) u/(l0|u|²) + ((x3−x1)·(x2−x1)) v/(l0|v|²)
+/// ```
+///
+/// and `θ = atan2((u × v)·e0 / l0, u·v)`. One square root, two divisions. The stencil checks are those of
+/// [`HingeFrames::new`] (the same errors, computed on the failure path by it).
+///
+/// # Errors
+/// As [`HingeFrames::new`].
+#[inline]
+pub fn theta_and_gradient(x: &Stencil) -> Result<(f64, [Vector3<f64>; 4]), StencilError> {
+    let [x0, x1, x2, x3] = x;
+    let e0 = x2 - x1;
+    let (a1, a2) = (x0 - x1, x0 - x2);
+    let (b1, b2) = (x3 - x1, x3 - x2);
+    let l0sq = e0.norm_squared();
+    let (a1s, a2s, b1s, b2s) = (a1.norm_squared(), a2.norm_squared(), b1.norm_squared(), b2.norm_squared());
+    let u = a1.cross(&a2); // (x0 − x1) × (x0 − x2) = (x1 − x0) × (x2 − x0)
+    let v = b2.cross(&b1); // (x3 − x2) × (x3 − x1) = (x2 − x3) × (x1 − x3)
+    let (uu, vv) = (u.norm_squared(), v.norm_squared());
+    let tol2 = DEGENERACY_TOLERANCE * DEGENERACY_TOLERANCE;
+    let lu = l0sq.max(a1s).max(a2s);
+    let lv = l0sq.max(b1s).max(b2s);
+    let scale = a1s.max(a2s).max(b1s).max(b2s);
+    let ok = l0sq > tol2 * scale && uu > tol2 * lu * lu && vv > tol2 * lv * lv && (uu + vv + scale).is_finite();
+    if !ok {
+        // The precise error (which check, which vertex) from the reference path.
+        HingeFrames::new(x)?;
+        // Unreachable in practice: both paths test the same conditions. Report the upper triangle.
+        return Err(StencilError::AltitudeCollapse {
+            side: HingeSide::Upper,
+            vertex: 0,
+            relative_altitude: uu.sqrt() / lu,
+        });
+    }
+    let l0 = l0sq.sqrt();
+    let (iu, iv) = (1.0 / uu, 1.0 / vv);
+    let il0 = 1.0 / l0;
+    let theta = (u.cross(&v).dot(&e0) * il0).atan2(u.dot(&v));
+    let su = iu * il0;
+    let sv = iv * il0;
+    let g = [
+        u * (-l0 * iu),
+        u * (a2.dot(&-e0) * su) + v * (b2.dot(&-e0) * sv),
+        u * (a1.dot(&e0) * su) + v * (b1.dot(&e0) * sv),
+        v * (-l0 * iv),
+    ];
+    Ok((theta, g))
+}
+
 /// θ and ∇θ (Eq. 4) of a stencil.
 ///
 /// # Errors

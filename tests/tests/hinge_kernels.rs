@@ -4,7 +4,7 @@
 
 use hinge_core::StencilError;
 use hinge_core::autodiff::{flatten, hinge_angle_autodiff, hinge_angle_generic};
-use hinge_core::hinge::{
+use hinge_core::hinge::{theta_and_gradient, 
     HingeAngleDerivatives, hinge_angle, hinge_angle_gradient, hinge_angle_hessian, tan_half_angle,
 };
 use hinge_tests::*;
@@ -51,12 +51,17 @@ fn summary(name: &str, e: &[f64]) -> f64 {
 
 #[test]
 fn closed_form_matches_autodiff_on_random_hinges() {
-    let (mut eg, mut eh) = (Vec::new(), Vec::new());
+    let (mut eg, mut eh, mut ef) = (Vec::new(), Vec::new(), Vec::new());
     let mut max_abs_theta: f64 = 0.0;
     let mut near_zero = 0;
     for (target, x) in sample() {
         let cf = hinge_angle_hessian(&x).unwrap();
         let ad = hinge_angle_autodiff(&x).unwrap();
+        // The engine's unnormalised form of Eq. 4.
+        let (tf, gf) = theta_and_gradient(&x).unwrap();
+        assert!((tf - ad.theta).abs() < 1e-14);
+        let gf: Vec<f64> = gf.iter().flat_map(|v| [v.x, v.y, v.z]).collect();
+        ef.push(rel_error(&gf, ad.gradient.as_slice()) / UNIT_ROUNDOFF);
         // Same angle (absolute error: θ's condition number is 1/|θ|-free), and the construction's |θ|.
         assert!(
             (cf.theta - ad.theta).abs() < 1e-14,
@@ -82,6 +87,8 @@ fn closed_form_matches_autodiff_on_random_hinges() {
     assert!(near_zero > 1000, "the sample must include θ near 0");
     let g = summary("gradient closed form vs num-dual (ulps)", &eg);
     let h = summary("hessian closed form vs num-dual (ulps)", &eh);
+    let f = summary("unnormalised gradient (theta_and_gradient) vs num-dual (ulps)", &ef);
+    assert!(f <= GRADIENT_ULPS, "theta_and_gradient: {f} ulps");
     assert!(g <= GRADIENT_ULPS, "gradient: {g} ulps");
     assert!(h <= HESSIAN_ULPS, "hessian: {h} ulps");
 }
