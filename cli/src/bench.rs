@@ -77,7 +77,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     for &n in &args.sizes {
         let rest = unit_grid(n).map_err(|e| e.to_string())?;
         let x = wave(rest.positions());
-        let model = BendingModel::new(&rest, DiscreteShells { k: Stiffness::Uniform(1.0) }).map_err(|e| e.to_string())?;
+        let model = BendingModel::new(
+            &rest,
+            DiscreteShells {
+                k: Stiffness::Uniform(1.0),
+            },
+        )
+        .map_err(|e| e.to_string())?;
         let (nv, nh) = (model.n_vertices(), model.topology().hinges().len());
         let mut out = model.new_output();
         let mut scratch = model.new_scratch();
@@ -93,8 +99,17 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                 match kind {
                     Kind::Full(method, threads) => {
                         let p = if threads == 1 { &one } else { &many };
-                        p.install(|| model.evaluate_into(&x, Request::ALL, method, Parallelism::Rayon, &mut scratch, &mut out))
-                            .map_err(|e| e.to_string())?;
+                        p.install(|| {
+                            model.evaluate_into(
+                                &x,
+                                Request::ALL,
+                                method,
+                                Parallelism::Rayon,
+                                &mut scratch,
+                                &mut out,
+                            )
+                        })
+                        .map_err(|e| e.to_string())?;
                     }
                     Kind::Local(method) => {
                         let sum = model
@@ -117,8 +132,14 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                     // Bitwise identity across thread counts, checked on the benchmark itself.
                     match &one_thread_hessian {
                         None => one_thread_hessian = Some(out.hessian.clone()),
-                        Some(h) if h.iter().zip(&out.hessian).any(|(a, b)| a.to_bits() != b.to_bits()) => {
-                            return Err(format!("the {threads}-thread Hessian differs from the 1-thread one"));
+                        Some(h)
+                            if h.iter()
+                                .zip(&out.hessian)
+                                .any(|(a, b)| a.to_bits() != b.to_bits()) =>
+                        {
+                            return Err(format!(
+                                "the {threads}-thread Hessian differs from the 1-thread one"
+                            ));
                         }
                         Some(_) => {}
                     }

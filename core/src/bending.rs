@@ -239,7 +239,11 @@ impl<P: HingePsi> BendingModel<P> {
             );
         }
         let pattern = SymmetricPattern::new(n, pairs);
-        let slot = |a: usize, b: usize| pattern.find(a, b).map_or(NO_SLOT, |s| pattern.blocks()[s].offset);
+        let slot = |a: usize, b: usize| {
+            pattern
+                .find(a, b)
+                .map_or(NO_SLOT, |s| pattern.blocks()[s].offset)
+        };
         let bits = topology.orientation_bits();
         let tri_slots = tri_elements
             .iter()
@@ -713,7 +717,11 @@ impl<P: HingePsi> Ctx<'_, P> {
         hess.fill(0.0);
         let mut own = Owned {
             vertices: p.vertices.clone(),
-            values: if hess.is_empty() { 0..0 } else { p.values.clone() },
+            values: if hess.is_empty() {
+                0..0
+            } else {
+                p.values.clone()
+            },
             grad,
             hess,
             local_only: self.local_only,
@@ -770,13 +778,15 @@ impl<P: HingePsi> Ctx<'_, P> {
             }
         });
         let cs = &f.cos_angle;
-        let d = [0, 1, 2].map(|i| c[(i + 2) % 3] * cs[(i + 1) % 3] + c[(i + 1) % 3] * cs[(i + 2) % 3] - c[i]);
+        let d = [0, 1, 2]
+            .map(|i| c[(i + 2) % 3] * cs[(i + 1) % 3] + c[(i + 1) % 3] * cs[(i + 2) % 3] - c[i]);
         // Every term of Eq. 7 is a rank-one n ⊗ m_k or m_k ⊗ n, so each block is n pᵀ + q nᵀ for two vectors
         // p, q: M_i = n m_iᵀ, R_i = (c_i / l_i²) n m_iᵀ.
         let n = f.normal;
         let en = &f.edge_normal;
         let r = [0, 1, 2].map(|i| c[i] * f.inv_length_sq[i]);
         let ih = &f.inv_altitude;
+        // Blocks 0..3: diagonal (corner i, corner i); blocks 3..6: (corner i, corner i + 1).
         let mut blk = [Matrix3::zeros(); 6];
         for i in 0..3 {
             let (i1, i2) = ((i + 1) % 3, (i + 2) % 3);
@@ -803,27 +813,18 @@ impl<P: HingePsi> Ctx<'_, P> {
                 let s = &self.states[hid[k] as usize];
                 let g = s.grad.map(|gv| gv * s.d2psi);
                 let gr = &s.grad;
-                // Hinge x0, x1, x2 are corners k, k+1, k+2.
-                let corner = [k, (k + 1) % 3, (k + 2) % 3];
-                for a in 0..3 {
-                    blk[corner[a]] += g[a] * gr[a].transpose();
-                    let b = (a + 1) % 3;
-                    // Own off-diagonal block 3+i is (corner i, corner i+1).
-                    let (ca, cb) = (corner[a], corner[b]);
-                    if (ca + 1) % 3 == cb {
-                        blk[3 + ca] += g[a] * gr[b].transpose();
-                    } else {
-                        blk[3 + cb] += g[b] * gr[a].transpose();
-                    }
-                }
+                // Hinge x0, x1, x2 are corners k, k+1, k+2; own block 3 + i is (corner i, corner i + 1), so
+                // (x0, x1) → 3 + k, (x1, x2) → 3 + k1, (x2, x0) → 3 + k2.
+                let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+                blk[k] += g[0] * gr[0].transpose();
+                blk[k1] += g[1] * gr[1].transpose();
+                blk[k2] += g[2] * gr[2].transpose();
+                blk[3 + k] += g[0] * gr[1].transpose();
+                blk[3 + k1] += g[1] * gr[2].transpose();
+                blk[3 + k2] += g[2] * gr[0].transpose();
                 let hv = m.topology.hinges()[hid[k] as usize].vertices;
                 let x3 = hv[3];
-                own.add_block(
-                    &slots[6 + 4 * k],
-                    x3,
-                    x3,
-                    &(g[3] * gr[3].transpose()),
-                );
+                own.add_block(&slots[6 + 4 * k], x3, x3, &(g[3] * gr[3].transpose()));
                 for a in 0..3 {
                     own.add_block(
                         &slots[7 + 4 * k + a],

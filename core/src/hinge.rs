@@ -207,7 +207,12 @@ pub fn theta_and_gradient(x: &Stencil) -> Result<(f64, [Vector3<f64>; 4]), Stenc
     let (a1, a2) = (x0 - x1, x0 - x2);
     let (b1, b2) = (x3 - x1, x3 - x2);
     let l0sq = e0.norm_squared();
-    let (a1s, a2s, b1s, b2s) = (a1.norm_squared(), a2.norm_squared(), b1.norm_squared(), b2.norm_squared());
+    let (a1s, a2s, b1s, b2s) = (
+        a1.norm_squared(),
+        a2.norm_squared(),
+        b1.norm_squared(),
+        b2.norm_squared(),
+    );
     let u = a1.cross(&a2); // (x0 − x1) × (x0 − x2) = (x1 − x0) × (x2 − x0)
     let v = b2.cross(&b1); // (x3 − x2) × (x3 − x1) = (x2 − x3) × (x1 − x3)
     let (uu, vv) = (u.norm_squared(), v.norm_squared());
@@ -215,7 +220,10 @@ pub fn theta_and_gradient(x: &Stencil) -> Result<(f64, [Vector3<f64>; 4]), Stenc
     let lu = l0sq.max(a1s).max(a2s);
     let lv = l0sq.max(b1s).max(b2s);
     let scale = a1s.max(a2s).max(b1s).max(b2s);
-    let ok = l0sq > tol2 * scale && uu > tol2 * lu * lu && vv > tol2 * lv * lv && (uu + vv + scale).is_finite();
+    let ok = l0sq > tol2 * scale
+        && uu > tol2 * lu * lu
+        && vv > tol2 * lv * lv
+        && (uu + vv + scale).is_finite();
     if !ok {
         // The precise error (which check, which vertex) from the reference path.
         HingeFrames::new(x)?;

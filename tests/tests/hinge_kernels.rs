@@ -4,8 +4,9 @@
 
 use hinge_core::StencilError;
 use hinge_core::autodiff::{flatten, hinge_angle_autodiff, hinge_angle_generic};
-use hinge_core::hinge::{theta_and_gradient, 
+use hinge_core::hinge::{
     HingeAngleDerivatives, hinge_angle, hinge_angle_gradient, hinge_angle_hessian, tan_half_angle,
+    theta_and_gradient,
 };
 use hinge_tests::*;
 use nalgebra::{Rotation3, Vector3};
@@ -87,7 +88,10 @@ fn closed_form_matches_autodiff_on_random_hinges() {
     assert!(near_zero > 1000, "the sample must include θ near 0");
     let g = summary("gradient closed form vs num-dual (ulps)", &eg);
     let h = summary("hessian closed form vs num-dual (ulps)", &eh);
-    let f = summary("unnormalised gradient (theta_and_gradient) vs num-dual (ulps)", &ef);
+    let f = summary(
+        "unnormalised gradient (theta_and_gradient) vs num-dual (ulps)",
+        &ef,
+    );
     assert!(f <= GRADIENT_ULPS, "theta_and_gradient: {f} ulps");
     assert!(g <= GRADIENT_ULPS, "gradient: {g} ulps");
     assert!(h <= HESSIAN_ULPS, "hessian: {h} ulps");
