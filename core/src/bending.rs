@@ -157,8 +157,15 @@ pub struct BendingModel<P: HingePsi> {
     /// Per refactored element: 6 own block slots (00, 11, 22, 01, 12, 20 by corner) and 4 x3 slots for each
     /// corner whose edge is the element's assigned hinge (x3x3, x3x0, x3x1, x3x2).
     tri_slots: Vec<[Slot; 18]>,
-    /// Per refactored element: the hinge on each of its edges (NONE on the boundary).
-    tri_hinges: Vec<[u32; 3]>,
+    /// Per refactored element: the state slot of the hinge on each of its edges (NONE on the boundary).
+    tri_states: Vec<[u32; 3]>,
+    /// Hinge states are stored in the order the refactored pass consumes them (each hinge right where its
+    /// upper triangle T is visited), so that pass streams through them: slot → hinge.
+    state_order: Vec<u32>,
+    /// hinge → slot.
+    state_of: Vec<u32>,
+    /// Stencil vertices x0..x3 per slot.
+    state_vertices: Vec<[usize; 4]>,
     /// Per hinge: 10 block slots (00, 11, 22, 33, 10, 20, 30, 21, 31, 32).
     hinge_slots: Vec<[Slot; 10]>,
     /// Hinge index of each edge (NONE on the boundary).
@@ -175,9 +182,13 @@ struct Partition {
     hinges: Vec<u32>,
 }
 
-/// Vertices per partition: small enough for load balance on a few cores, large enough that elements
-/// straddling two partitions (computed by both) are rare.
-const PARTITION_VERTICES: usize = 2048;
+/// Vertices per partition on large meshes. An element straddling two partitions is computed by both, so
+/// partitions must be many rows of a mesh deep (8192 vertices are 20 rows of a 401² grid: ~5% repeated work).
+const PARTITION_VERTICES: usize = 8192;
+/// Small meshes still get this many partitions (of at least `MIN_PARTITION_VERTICES` each) so a few threads
+/// have work to share.
+const MIN_PARTITIONS: usize = 8;
+const MIN_PARTITION_VERTICES: usize = 512;
 
 impl<P: HingePsi> BendingModel<P> {
     /// Binds `psi` to a rest mesh: builds the topology, the rest quantities of every hinge (θ̄, a, rest length,
@@ -294,9 +305,34 @@ impl<P: HingePsi> BendingModel<P> {
                 ]
             })
             .collect();
-        let tri_hinges = tri_elements
+        let mut state_order = Vec::with_capacity(topology.hinges().len());
+        for &t in &tri_elements {
+            for k in 0..3 {
+                let hid = edge_hinge[topology.triangle_edges()[t as usize][k]];
+                if hid != NONE && bits[t as usize] >> k & 1 == 1 {
+                    state_order.push(hid);
+                }
+            }
+        }
+        let mut state_of = vec![NONE; topology.hinges().len()];
+        for (slot, &h) in state_order.iter().enumerate() {
+            state_of[h as usize] = slot as u32;
+        }
+        let tri_states = tri_elements
             .iter()
-            .map(|&t| topology.triangle_edges()[t as usize].map(|e| edge_hinge[e]))
+            .map(|&t| {
+                topology.triangle_edges()[t as usize].map(|e| {
+                    if edge_hinge[e] == NONE {
+                        NONE
+                    } else {
+                        state_of[edge_hinge[e] as usize]
+                    }
+                })
+            })
+            .collect();
+        let state_vertices = state_order
+            .iter()
+            .map(|&h| topology.hinges()[h as usize].vertices)
             .collect();
         let mut model = Self {
             psi,
@@ -305,7 +341,10 @@ impl<P: HingePsi> BendingModel<P> {
             params,
             pattern,
             tri_elements,
-            tri_hinges,
+            tri_states,
+            state_order,
+            state_of,
+            state_vertices,
             tri_slots,
             hinge_slots,
             edge_hinge,
@@ -317,7 +356,11 @@ impl<P: HingePsi> BendingModel<P> {
 
     fn build_partitions(&self) -> Vec<Partition> {
         let n = self.topology.n_vertices();
-        let count = n.div_ceil(PARTITION_VERTICES).max(1);
+        // Fixed by the mesh alone, never by the thread count (results do not depend on it anyway).
+        let count = n
+            .div_ceil(PARTITION_VERTICES)
+            .max(MIN_PARTITIONS.min(n.div_ceil(MIN_PARTITION_VERTICES)))
+            .max(1);
         let mut parts: Vec<Partition> = (0..count)
             .map(|p| {
                 let vs = p * n / count..(p + 1) * n / count;
@@ -468,13 +511,23 @@ impl<P: HingePsi> BendingModel<P> {
         let first_error = match par {
             Parallelism::Sequential => states
                 .iter_mut()
-                .enumerate()
-                .find_map(|(i, s)| self.hinge_pass(i, x, need_grad, s).err()),
+                .zip(&self.state_order)
+                .filter_map(|(s, &h)| {
+                    self.hinge_pass(h as usize, x, need_grad, s)
+                        .err()
+                        .map(|e| (h, e))
+                })
+                .min_by_key(|(h, _)| *h)
+                .map(|(_, e)| e),
             Parallelism::Rayon => states
                 .par_iter_mut()
-                .enumerate()
-                .filter_map(|(i, s)| self.hinge_pass(i, x, need_grad, s).err().map(|e| (i, e)))
-                .min_by_key(|(i, _)| *i)
+                .zip(&self.state_order)
+                .filter_map(|(s, &h)| {
+                    self.hinge_pass(h as usize, x, need_grad, s)
+                        .err()
+                        .map(|e| (h, e))
+                })
+                .min_by_key(|(h, _)| *h)
                 .map(|(_, e)| e),
         };
         if let Some(e) = first_error {
@@ -544,8 +597,8 @@ impl<P: HingePsi> BendingModel<P> {
             scratch,
             out,
         )?;
-        for (i, s) in scratch.hinges.iter_mut().enumerate() {
-            self.hinge_pass(i, x, true, s)?;
+        for (s, &h) in scratch.hinges.iter_mut().zip(&self.state_order) {
+            self.hinge_pass(h as usize, x, true, s)?;
         }
         let ctx = Ctx {
             model: self,
@@ -750,13 +803,13 @@ impl<P: HingePsi> Ctx<'_, P> {
         let v = m.topology.triangles()[t];
         let slots = &m.tri_slots[e];
         let bits = m.topology.orientation_bits()[t];
-        let hid = m.tri_hinges[e];
+        let hid = m.tri_states[e];
         let assigned = |k: usize| hid[k] != NONE && bits >> k & 1 == 1;
         if self.request.gradient {
             for k in 0..3 {
                 if assigned(k) {
                     let s = &self.states[hid[k] as usize];
-                    let hv = m.topology.hinges()[hid[k] as usize].vertices;
+                    let hv = m.state_vertices[hid[k] as usize];
                     for a in 0..4 {
                         own.add_grad(hv[a], &(s.grad[a] * s.dpsi));
                     }
@@ -822,7 +875,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                 blk[3 + k] += g[0] * gr[1].transpose();
                 blk[3 + k1] += g[1] * gr[2].transpose();
                 blk[3 + k2] += g[2] * gr[0].transpose();
-                let hv = m.topology.hinges()[hid[k] as usize].vertices;
+                let hv = m.state_vertices[hid[k] as usize];
                 let x3 = hv[3];
                 own.add_block(&slots[6 + 4 * k], x3, x3, &(g[3] * gr[3].transpose()));
                 for a in 0..3 {
@@ -847,7 +900,7 @@ impl<P: HingePsi> Ctx<'_, P> {
     fn hinge(&self, hid: usize, own: &mut Owned) {
         let m = self.model;
         let h = &m.topology.hinges()[hid];
-        let s = &self.states[hid];
+        let s = &self.states[m.state_of[hid] as usize];
         let st: Stencil = h.vertices.map(|v| self.x[v]);
         let hv = h.vertices;
         let slots = &m.hinge_slots[hid];
