@@ -7,7 +7,7 @@ use std::time::Instant;
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{unit_grid, wave};
-use hinge_core::psi::{DiscreteShells, Stiffness};
+use hinge_core::psi::DiscreteShells;
 
 /// Arguments of `hinge bench`.
 #[derive(Args)]
@@ -77,13 +77,8 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     for &n in &args.sizes {
         let rest = unit_grid(n).map_err(|e| e.to_string())?;
         let x = wave(rest.positions());
-        let model = BendingModel::new(
-            &rest,
-            DiscreteShells {
-                k: Stiffness::Uniform(1.0),
-            },
-        )
-        .map_err(|e| e.to_string())?;
+        let model =
+            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).map_err(|e| e.to_string())?;
         let (nv, nh) = (model.n_vertices(), model.topology().hinges().len());
         let mut out = model.new_output();
         let mut scratch = model.new_scratch();

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
-use hinge_core::psi::{DiscreteShells, HingePsi, Stiffness, TanBending};
+use hinge_core::psi::{DiscreteShells, HingePsi, TanBending};
 use hinge_core::{TriMesh, export, obj};
 
 /// Energies `hinge eval` knows, with their parameters and defaults.
@@ -102,7 +102,6 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .num_threads(threads)
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
-    let k = Stiffness::Uniform(k);
     let ctx = EvalCtx {
         rest: &rest,
         deformed: &deformed,

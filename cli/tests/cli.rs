@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
-use hinge_core::psi::{Stiffness, TanBending};
+use hinge_core::psi::TanBending;
 
 fn hinge(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_hinge"))
@@ -56,13 +56,7 @@ fn eval_round_trip_matches_the_library() {
     let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let rest = hinge_core::obj::read_obj(data("grid80_rest.obj")).unwrap();
     let def = hinge_core::obj::read_obj(data("grid80_jitter.obj")).unwrap();
-    let model = BendingModel::new(
-        &rest,
-        TanBending {
-            k: Stiffness::Uniform(2.5),
-        },
-    )
-    .unwrap();
+    let model = BendingModel::new(&rest, TanBending { k: 2.5 }).unwrap();
     let e = model
         .evaluate(
             def.positions(),

@@ -40,7 +40,7 @@ use crate::geometry::TriangleFrame;
 use crate::hinge::{HingeFrames, Stencil, hessian_blocks, theta_and_gradient};
 use crate::mesh::{TriMesh, check_same_vertex_count};
 use crate::pattern::SymmetricPattern;
-use crate::psi::{HingePsi, RestHinge};
+use crate::psi::{HingePsi, HingeQuantities, RestHinge};
 use crate::topology::Topology;
 
 /// How the bending Hessian is computed.
@@ -198,6 +198,7 @@ impl<P: HingePsi> BendingModel<P> {
     /// [`EvalError::Mesh`] for an invalid mesh, [`EvalError::Hinge`] for a degenerate rest stencil.
     pub fn new(rest: &TriMesh, psi: P) -> Result<Self, EvalError> {
         let topology = Topology::new(rest.n_vertices(), rest.triangles())?;
+        psi.validate(topology.hinges().len())?;
         let x = rest.positions();
         let mut rest_h = Vec::with_capacity(topology.hinges().len());
         for (i, h) in topology.hinges().iter().enumerate() {
@@ -220,7 +221,7 @@ impl<P: HingePsi> BendingModel<P> {
         let params = rest_h
             .iter()
             .enumerate()
-            .map(|(i, r)| psi.params(i, r))
+            .map(|(i, r)| psi.params(&HingeQuantities::at_rest(i, r)))
             .collect();
         let n = rest.n_vertices();
         let tris = topology.triangles();
@@ -463,6 +464,43 @@ impl<P: HingePsi> BendingModel<P> {
         let mut scratch = self.new_scratch();
         self.evaluate_into(x, request, method, par, &mut scratch, &mut out)?;
         Ok(out)
+    }
+
+    /// Starts a time step: θ at the end of the previous step is taken from positions `x_prev`, and `dt` is the
+    /// step. Energies that use `theta_prev` or `dt` (viscous damping) refresh their step-dependent
+    /// parameters; for the others this only validates the input.
+    ///
+    /// # Errors
+    /// [`EvalError::Mesh`] for bad positions, [`EvalError::Hinge`] for a degenerate stencil,
+    /// [`EvalError::Step`] for a non-positive or non-finite `dt`. On error nothing changes.
+    pub fn set_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
+        check_same_vertex_count(self.n_vertices(), x_prev.len())?;
+        if !(dt > 0.0 && dt.is_finite()) {
+            return Err(EvalError::Step { dt });
+        }
+        let mut thetas = Vec::with_capacity(self.topology.hinges().len());
+        for (i, h) in self.topology.hinges().iter().enumerate() {
+            let st: Stencil = h.vertices.map(|v| x_prev[v]);
+            // The same θ as the evaluation computes, so a state equal to the previous step has θ = θ_prev.
+            let (theta, _) = theta_and_gradient(&st).map_err(|source| EvalError::Hinge {
+                hinge: i,
+                edge: h.edge,
+                vertices: h.vertices,
+                source,
+            })?;
+            thetas.push(theta);
+        }
+        if P::USES_STEP {
+            for (i, (p, r)) in self.params.iter_mut().zip(&self.rest).enumerate() {
+                let q = HingeQuantities {
+                    theta_prev: thetas[i],
+                    dt,
+                    ..HingeQuantities::at_rest(i, r)
+                };
+                self.psi.update_step(&q, p);
+            }
+        }
+        Ok(())
     }
 
     /// Per-hinge scratch space for [`BendingModel::evaluate_into`], allocated once.

@@ -177,6 +177,15 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// A time step that is not positive and finite.
+    #[error("time step dt = {dt} must be positive and finite")]
+    Step {
+        /// The offending step.
+        dt: f64,
+    },
+    /// The energy's parameters do not fit the mesh.
+    #[error(transparent)]
+    Psi(#[from] crate::psi::PsiError),
     /// An output buffer does not have the length this model needs.
     #[error("output buffer `{buffer}` has length {got}, expected {expected}")]
     BufferLength {

@@ -43,3 +43,16 @@ pub use mesh::TriMesh;
 pub use topology::{Edge, Hinge, Topology};
 
 pub use nalgebra;
+
+/// The derive macro for hinge energies: see the crate docs and [`psi::HingePsi`].
+pub use hinge_macros::HingeEnergy;
+
+// Lets the derive's absolute `::hinge_core::…` paths resolve inside this crate too.
+extern crate self as hinge_core;
+
+/// Items the derive macro's generated code refers to. Not a public API: may change without notice.
+#[doc(hidden)]
+pub mod __private {
+    pub use crate::psi::{HingePsi, HingeQuantities, PsiError};
+    pub use num_dual::{self, DualNum};
+}

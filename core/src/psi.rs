@@ -30,17 +30,82 @@ pub struct RestHinge {
     pub rest_area: f64,
 }
 
+/// Everything a ψ may depend on besides θ, for one hinge: its index, its rest quantities and the current
+/// step's quantities (for damping).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct HingeQuantities {
+    /// Hinge index (for per-hinge parameters).
+    pub hinge: usize,
+    /// Rest hinge angle θ̄.
+    pub theta_bar: f64,
+    /// `a = 3|ē|²/Ā`.
+    pub a: f64,
+    /// Rest length of the hinge edge.
+    pub rest_length: f64,
+    /// Ā, the summed rest area of the two triangles.
+    pub rest_area: f64,
+    /// θ at the end of the previous time step (θ̄ until a step is set).
+    pub theta_prev: f64,
+    /// The time step (1 until a step is set).
+    pub dt: f64,
+}
+
+impl HingeQuantities {
+    /// The quantities of hinge `hinge` before any time step: `theta_prev = θ̄`, `dt = 1`.
+    pub fn at_rest(hinge: usize, rest: &RestHinge) -> Self {
+        Self {
+            hinge,
+            theta_bar: rest.theta_bar,
+            a: rest.a,
+            rest_length: rest.rest_length,
+            rest_area: rest.rest_area,
+            theta_prev: rest.theta_bar,
+            dt: 1.0,
+        }
+    }
+}
+
+/// A ψ whose parameters do not fit the mesh.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("parameter `{name}`: {message}")]
+pub struct PsiError {
+    /// The parameter (struct field) name.
+    pub name: &'static str,
+    /// What is wrong.
+    pub message: String,
+}
+
 /// A hinge bending energy ψ(θ).
+///
+/// Implement it by hand, or declare it with `#[derive(HingeEnergy)]` (see the crate docs).
 pub trait HingePsi: Sync {
-    /// Per-hinge parameters, computed once from the rest state by [`HingePsi::params`].
+    /// Per-hinge parameters, computed from [`HingeQuantities`] by [`HingePsi::params`].
     type Params: Copy + Send + Sync;
 
     /// True when ψ″ ≡ 0 for every θ (ψ affine in θ): the kernels then skip the outer-product pass and the
     /// pattern omits the x0–x3 couplings.
     const D2_IS_ZERO: bool = false;
 
-    /// Parameters of hinge `hinge` from its rest quantities.
-    fn params(&self, hinge: usize, rest: &RestHinge) -> Self::Params;
+    /// True when the parameters depend on the step quantities (`theta_prev`, `dt`): the model then calls
+    /// [`HingePsi::update_step`] whenever a new step is set.
+    const USES_STEP: bool = false;
+
+    /// Checks the energy against a mesh with `n_hinges` hinges (per-hinge parameter lengths, finiteness).
+    ///
+    /// # Errors
+    /// A [`PsiError`] naming the parameter.
+    fn validate(&self, n_hinges: usize) -> Result<(), PsiError> {
+        let _ = n_hinges;
+        Ok(())
+    }
+
+    /// Parameters of one hinge.
+    fn params(&self, q: &HingeQuantities) -> Self::Params;
+
+    /// Refreshes the step-dependent part of `p` for a new step (default: recompute everything).
+    fn update_step(&self, q: &HingeQuantities, p: &mut Self::Params) {
+        *p = self.params(q);
+    }
 
     /// `[ψ, ψ′, ψ″]` at θ. A value that cannot be represented (the tan energy at θ = ±π) is returned as
     /// non-finite; the engine reports it as a typed error naming the hinge.
@@ -58,9 +123,20 @@ pub trait HingePsi: Sync {
 impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
     type Params = (A::Params, B::Params);
     const D2_IS_ZERO: bool = A::D2_IS_ZERO && B::D2_IS_ZERO;
+    const USES_STEP: bool = A::USES_STEP || B::USES_STEP;
 
-    fn params(&self, hinge: usize, rest: &RestHinge) -> Self::Params {
-        (self.0.params(hinge, rest), self.1.params(hinge, rest))
+    fn validate(&self, n_hinges: usize) -> Result<(), PsiError> {
+        self.0.validate(n_hinges)?;
+        self.1.validate(n_hinges)
+    }
+
+    fn params(&self, q: &HingeQuantities) -> Self::Params {
+        (self.0.params(q), self.1.params(q))
+    }
+
+    fn update_step(&self, q: &HingeQuantities, p: &mut Self::Params) {
+        self.0.update_step(q, &mut p.0);
+        self.1.update_step(q, &mut p.1);
     }
 
     #[inline]
@@ -75,99 +151,158 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
     }
 }
 
-/// Per-hinge parameters shared by the hand-written energies: `k·a` and θ̄ (or φ(θ̄)).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct ScaledRest {
-    /// Stiffness times `a`.
-    pub ka: f64,
-    /// The rest value the energy compares against (θ̄ or φ(θ̄)).
-    pub rest: f64,
-}
-
-/// Stiffness: one value for every hinge, or one per hinge (graded or anisotropic materials).
-#[derive(Debug, Clone, PartialEq)]
-pub enum Stiffness {
-    /// The same `k` everywhere.
-    Uniform(f64),
-    /// `k` per hinge, in hinge order.
-    PerHinge(Vec<f64>),
-}
-
-impl Stiffness {
-    /// `k` of hinge `h` (0 for a hinge beyond a too-short per-hinge list; the engine checks lengths when an
-    /// energy is bound to a mesh).
-    pub fn at(&self, h: usize) -> f64 {
-        match self {
-            Stiffness::Uniform(k) => *k,
-            Stiffness::PerHinge(ks) => ks.get(h).copied().unwrap_or(0.0),
-        }
-    }
-}
-
-/// Discrete shells (Grinspun et al. 2003): `ψ = k·a·(θ − θ̄)²`.
-#[derive(Debug, Clone, PartialEq)]
+/// Discrete shells (Grinspun et al. 2003): `ψ = k·a·(θ − θ̄)²`, declared with the derive macro.
+#[derive(Debug, Clone, PartialEq, crate::HingeEnergy)]
+#[psi(k * a * (theta - theta_bar).powi(2))]
 pub struct DiscreteShells {
     /// Bending stiffness k.
-    pub k: Stiffness,
+    pub k: f64,
 }
 
-impl HingePsi for DiscreteShells {
-    type Params = ScaledRest;
-
-    fn params(&self, hinge: usize, rest: &RestHinge) -> ScaledRest {
-        ScaledRest {
-            ka: self.k.at(hinge) * rest.a,
-            rest: rest.theta_bar,
-        }
-    }
-
-    #[inline]
-    fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
-        let d = theta - p.rest;
-        [p.ka * d * d, 2.0 * p.ka * d, 2.0 * p.ka]
-    }
-
-    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
-        let d = theta - p.rest;
-        d * d * p.ka
-    }
-}
-
-/// The tan-based energy of the paper (§5): `ψ = k·a·(φ(θ) − φ(θ̄))²` with `φ(θ) = 2 tan(θ/2)`.
+/// The tan-based energy of the paper (§5): `ψ = k·a·(φ(θ) − φ(θ̄))²` with `φ(θ) = 2 tan(θ/2)`, declared with
+/// the derive macro.
 ///
-/// It grows without bound as θ → ±π (a barrier against folding through). At θ = ±π exactly the values are
-/// not finite and the engine reports a typed error.
-#[derive(Debug, Clone, PartialEq)]
+/// It grows without bound as θ → ±π (a barrier against folding through). In floating point `tan(θ/2)` stays
+/// finite even at θ = π (about 1.6e16), so the values are huge but finite; the engine reports a typed error
+/// if they overflow.
+#[derive(Debug, Clone, PartialEq, crate::HingeEnergy)]
+#[psi(k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2))]
 pub struct TanBending {
     /// Bending stiffness k.
-    pub k: Stiffness,
+    pub k: f64,
 }
 
-impl HingePsi for TanBending {
-    type Params = ScaledRest;
+/// Hand-written ψ implementations: the reference the macro-generated energies are tested against (they
+/// give identical numbers for discrete shells) and the baseline of `hinge bench`'s ψ rows. They also show
+/// how to implement [`HingePsi`] by hand, with a stiffness that may vary per hinge.
+pub mod handwritten {
+    use num_dual::DualNum;
 
-    fn params(&self, hinge: usize, rest: &RestHinge) -> ScaledRest {
-        ScaledRest {
-            ka: self.k.at(hinge) * rest.a,
-            rest: 2.0 * (0.5 * rest.theta_bar).tan(),
+    use super::{HingePsi, HingeQuantities, PsiError};
+
+    /// Per-hinge parameters shared by the hand-written energies: `k·a` and θ̄ (or φ(θ̄)).
+    #[derive(Debug, Clone, Copy, PartialEq, Default)]
+    pub struct ScaledRest {
+        /// Stiffness times `a`.
+        pub ka: f64,
+        /// The rest value the energy compares against (θ̄ or φ(θ̄)).
+        pub rest: f64,
+    }
+
+    /// Stiffness: one value for every hinge, or one per hinge (graded or anisotropic materials).
+    #[derive(Debug, Clone, PartialEq)]
+    pub enum Stiffness {
+        /// The same `k` everywhere.
+        Uniform(f64),
+        /// `k` per hinge, in hinge order.
+        PerHinge(Vec<f64>),
+    }
+
+    impl Stiffness {
+        fn check(&self, n_hinges: usize) -> Result<(), PsiError> {
+            match self {
+                Stiffness::Uniform(k) if !k.is_finite() => Err(PsiError {
+                    name: "k",
+                    message: format!("is not finite ({k})"),
+                }),
+                Stiffness::PerHinge(ks) if ks.len() != n_hinges => Err(PsiError {
+                    name: "k",
+                    message: format!("has {} values but the mesh has {n_hinges} hinges", ks.len()),
+                }),
+                Stiffness::PerHinge(ks) => match ks.iter().position(|k| !k.is_finite()) {
+                    Some(i) => Err(PsiError {
+                        name: "k",
+                        message: format!("value of hinge {i} is not finite ({})", ks[i]),
+                    }),
+                    None => Ok(()),
+                },
+                Stiffness::Uniform(_) => Ok(()),
+            }
+        }
+
+        /// `k` of hinge `h` (NaN beyond a too-short per-hinge list, which [`HingePsi::validate`] rejects when the
+        /// energy is bound to a mesh).
+        pub fn at(&self, h: usize) -> f64 {
+            match self {
+                Stiffness::Uniform(k) => *k,
+                Stiffness::PerHinge(ks) => ks.get(h).copied().unwrap_or(f64::NAN),
+            }
         }
     }
 
-    #[inline]
-    fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
-        // φ = 2t, φ′ = 1 + t², φ″ = t(1 + t²) with t = tan(θ/2).
-        let t = (0.5 * theta).tan();
-        let s = 1.0 + t * t;
-        let d = 2.0 * t - p.rest;
-        [
-            p.ka * d * d,
-            2.0 * p.ka * d * s,
-            2.0 * p.ka * (s * s + d * t * s),
-        ]
+    /// Discrete shells (Grinspun et al. 2003): `ψ = k·a·(θ − θ̄)²`.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct DiscreteShells {
+        /// Bending stiffness k.
+        pub k: Stiffness,
     }
 
-    fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
-        let d = (theta * 0.5).tan() * 2.0 - p.rest;
-        d * d * p.ka
+    impl HingePsi for DiscreteShells {
+        type Params = ScaledRest;
+
+        fn validate(&self, n_hinges: usize) -> Result<(), PsiError> {
+            self.k.check(n_hinges)
+        }
+
+        fn params(&self, q: &HingeQuantities) -> ScaledRest {
+            ScaledRest {
+                ka: self.k.at(q.hinge) * q.a,
+                rest: q.theta_bar,
+            }
+        }
+
+        #[inline]
+        fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
+            let d = theta - p.rest;
+            [p.ka * (d * d), p.ka * (2.0 * d), 2.0 * p.ka]
+        }
+
+        fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
+            let d = theta - p.rest;
+            d * d * p.ka
+        }
+    }
+
+    /// The tan-based energy of the paper (§5): `ψ = k·a·(φ(θ) − φ(θ̄))²` with `φ(θ) = 2 tan(θ/2)`.
+    ///
+    /// It grows without bound as θ → ±π (a barrier against folding through). At θ = ±π exactly the values are
+    /// not finite and the engine reports a typed error.
+    #[derive(Debug, Clone, PartialEq)]
+    pub struct TanBending {
+        /// Bending stiffness k.
+        pub k: Stiffness,
+    }
+
+    impl HingePsi for TanBending {
+        type Params = ScaledRest;
+
+        fn validate(&self, n_hinges: usize) -> Result<(), PsiError> {
+            self.k.check(n_hinges)
+        }
+
+        fn params(&self, q: &HingeQuantities) -> ScaledRest {
+            ScaledRest {
+                ka: self.k.at(q.hinge) * q.a,
+                rest: 2.0 * (0.5 * q.theta_bar).tan(),
+            }
+        }
+
+        #[inline]
+        fn eval(&self, p: &ScaledRest, theta: f64) -> [f64; 3] {
+            // φ = 2t, φ′ = 1 + t², φ″ = t(1 + t²) with t = tan(θ/2).
+            let t = (0.5 * theta).tan();
+            let s = 1.0 + t * t;
+            let d = 2.0 * t - p.rest;
+            [
+                p.ka * d * d,
+                2.0 * p.ka * d * s,
+                2.0 * p.ka * (s * s + d * t * s),
+            ]
+        }
+
+        fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &ScaledRest, theta: D) -> D {
+            let d = (theta * 0.5).tan() * 2.0 - p.rest;
+            d * d * p.ka
+        }
     }
 }

@@ -4,7 +4,7 @@
 use hinge_core::bending::{BendingModel, Evaluation, Method, Parallelism, Request};
 use hinge_core::grid::{Diagonal, grid, unit_grid};
 use hinge_core::obj::read_obj;
-use hinge_core::psi::{DiscreteShells, HingePsi, Stiffness, TanBending};
+use hinge_core::psi::{DiscreteShells, HingePsi, TanBending};
 use hinge_core::{TriMesh, nalgebra::Vector3};
 use hinge_tests::*;
 
@@ -15,9 +15,7 @@ fn data(name: &str) -> std::path::PathBuf {
 }
 
 fn ds() -> DiscreteShells {
-    DiscreteShells {
-        k: Stiffness::Uniform(1.0),
-    }
+    DiscreteShells { k: 1.0 }
 }
 
 fn frob<P: HingePsi>(m: &BendingModel<P>, e: &Evaluation) -> f64 {
@@ -144,24 +142,13 @@ fn methods_agree_discrete_shells() {
 
 #[test]
 fn methods_agree_tan_bending() {
-    method_agreement(
-        TanBending {
-            k: Stiffness::Uniform(2.5),
-        },
-        64.0,
-    );
+    method_agreement(TanBending { k: 2.5 }, 64.0);
 }
 
 #[test]
 fn whole_mesh_gradient_and_hessian_match_finite_differences() {
     let (rest, def) = irregular();
-    let model = BendingModel::new(
-        &rest,
-        TanBending {
-            k: Stiffness::Uniform(1.0),
-        },
-    )
-    .unwrap();
+    let model = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
     let e = model
         .evaluate(
             &def,
@@ -218,13 +205,7 @@ fn bitwise_identical_for_any_thread_count() {
     // Large enough for several partitions.
     let rest = unit_grid(90).unwrap();
     let def = reference_jitter(rest.positions());
-    let model = BendingModel::new(
-        &rest,
-        TanBending {
-            k: Stiffness::Uniform(1.0),
-        },
-    )
-    .unwrap();
+    let model = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
     for method in [Method::Refactored, Method::PerHinge] {
         let seq = model
             .evaluate(&def, Request::ALL, method, Parallelism::Sequential)
@@ -323,13 +304,7 @@ fn boundary_edges_contribute_nothing_and_tiny_meshes_work() {
 #[test]
 fn unrequested_outputs_are_untouched_and_errors_name_the_hinge() {
     let rest = unit_grid(6).unwrap();
-    let model = BendingModel::new(
-        &rest,
-        TanBending {
-            k: Stiffness::Uniform(1.0),
-        },
-    )
-    .unwrap();
+    let model = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
     let def = reference_jitter(rest.positions());
     let mut out = model.new_output();
     out.hessian.fill(7.0);

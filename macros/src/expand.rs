@@ -1,0 +1,557 @@
+//! Struct parsing, validation and code generation.
+
+use std::collections::HashMap;
+
+use proc_macro2::{Literal, TokenStream};
+use quote::{format_ident, quote, quote_spanned};
+use syn::spanned::Spanned;
+use syn::{Data, DeriveInput, Fields, Type};
+
+use crate::parse::{PROVIDED, Parser};
+use crate::sym::{Arena, Id, Node};
+
+struct Field {
+    ident: syn::Ident,
+    per_hinge: bool,
+}
+
+enum Mode {
+    Expr(syn::Expr),
+    Autodiff,
+}
+
+pub fn derive(input: &DeriveInput) -> TokenStream {
+    let mut errors: Vec<syn::Error> = Vec::new();
+    let name = &input.ident;
+    if !input.generics.params.is_empty() {
+        errors.push(syn::Error::new(
+            input.generics.span(),
+            "HingeEnergy does not support generic structs",
+        ));
+    }
+    let fields = match &input.data {
+        Data::Struct(s) => match &s.fields {
+            Fields::Named(named) => named.named.iter().collect::<Vec<_>>(),
+            Fields::Unit => Vec::new(),
+            Fields::Unnamed(u) => {
+                errors.push(syn::Error::new(
+                    u.span(),
+                    "HingeEnergy needs named fields (or none)",
+                ));
+                Vec::new()
+            }
+        },
+        _ => {
+            errors.push(syn::Error::new(
+                name.span(),
+                "HingeEnergy can only be derived for structs",
+            ));
+            Vec::new()
+        }
+    };
+    let mut parsed_fields = Vec::new();
+    for f in fields {
+        let per_hinge = f.attrs.iter().any(|a| a.path().is_ident("per_hinge"));
+        let Some(ident) = f.ident.clone() else {
+            continue;
+        };
+        let ok = if per_hinge {
+            is_vec_f64(&f.ty)
+        } else {
+            is_f64(&f.ty)
+        };
+        if !ok {
+            let want = if per_hinge {
+                "`Vec<f64>` (one value per hinge)"
+            } else {
+                "`f64` (mark per-hinge values `#[per_hinge]` with type `Vec<f64>`)"
+            };
+            errors.push(syn::Error::new(
+                f.ty.span(),
+                format!("field `{ident}` of a HingeEnergy must have type {want}"),
+            ));
+        }
+        if PROVIDED.contains(&ident.to_string().as_str()) || ident == "theta" {
+            errors.push(syn::Error::new(
+                ident.span(),
+                format!(
+                    "field `{ident}` shadows a name the ψ expression language provides; rename it"
+                ),
+            ));
+        }
+        parsed_fields.push(Field { ident, per_hinge });
+    }
+    let mut mode = None;
+    for attr in input.attrs.iter().filter(|a| a.path().is_ident("psi")) {
+        if mode.is_some() {
+            errors.push(syn::Error::new(
+                attr.span(),
+                "only one #[psi(...)] attribute is allowed",
+            ));
+            continue;
+        }
+        match attr.parse_args::<syn::Expr>() {
+            Ok(syn::Expr::Path(p)) if p.path.is_ident("autodiff") => mode = Some(Mode::Autodiff),
+            Ok(e) => mode = Some(Mode::Expr(e)),
+            Err(e) => errors.push(e),
+        }
+    }
+    if mode.is_none() && errors.is_empty() {
+        errors.push(syn::Error::new(
+            name.span(),
+            "missing #[psi(EXPR)] attribute: write the energy as an expression of `theta`, for example \
+             #[psi(k * a * (theta - theta_bar).powi(2))], or #[psi(autodiff)] with a generic `psi` method",
+        ));
+    }
+    let validate = validate_fn(&parsed_fields);
+    let body = match mode {
+        Some(Mode::Expr(e)) if errors.is_empty() => expr_impl(&e, &parsed_fields, &mut errors),
+        Some(Mode::Autodiff) if errors.is_empty() => Some(autodiff_impl()),
+        _ => None,
+    };
+    match body {
+        Some(body) if errors.is_empty() => quote! {
+            #[automatically_derived]
+            impl ::hinge_core::__private::HingePsi for #name {
+                #validate
+                #body
+            }
+        },
+        _ => fallback(name, errors),
+    }
+}
+
+/// On error: the errors, plus an impl that keeps the rest of the user's crate from piling up follow-on errors.
+fn fallback(name: &syn::Ident, errors: Vec<syn::Error>) -> TokenStream {
+    let errs = errors.iter().map(syn::Error::to_compile_error);
+    quote! {
+        #(#errs)*
+        #[automatically_derived]
+        impl ::hinge_core::__private::HingePsi for #name {
+            type Params = ();
+            fn params(&self, _: &::hinge_core::__private::HingeQuantities) {}
+            fn eval(&self, _: &(), _: f64) -> [f64; 3] { [0.0; 3] }
+            fn psi_dual<D: ::hinge_core::__private::DualNum<Primitive = f64> + ::core::marker::Copy>(&self, _: &(), t: D) -> D { t }
+        }
+    }
+}
+
+fn is_f64(ty: &Type) -> bool {
+    matches!(ty, Type::Path(p) if p.qself.is_none() && p.path.is_ident("f64"))
+}
+
+fn is_vec_f64(ty: &Type) -> bool {
+    let Type::Path(p) = ty else { return false };
+    let Some(seg) = p.path.segments.last() else {
+        return false;
+    };
+    if seg.ident != "Vec" {
+        return false;
+    }
+    match &seg.arguments {
+        syn::PathArguments::AngleBracketed(a) if a.args.len() == 1 => {
+            matches!(a.args.first(), Some(syn::GenericArgument::Type(t)) if is_f64(t))
+        }
+        _ => false,
+    }
+}
+
+fn validate_fn(fields: &[Field]) -> TokenStream {
+    let checks = fields.iter().map(|f| {
+        let id = &f.ident;
+        let lit = id.to_string();
+        if f.per_hinge {
+            quote! {
+                if self.#id.len() != n_hinges {
+                    return ::core::result::Result::Err(::hinge_core::__private::PsiError {
+                        name: #lit,
+                        message: ::std::format!("has {} values but the mesh has {} hinges", self.#id.len(), n_hinges),
+                    });
+                }
+                if let ::core::option::Option::Some(i) = self.#id.iter().position(|v| !v.is_finite()) {
+                    return ::core::result::Result::Err(::hinge_core::__private::PsiError {
+                        name: #lit,
+                        message: ::std::format!("value of hinge {} is not finite ({})", i, self.#id[i]),
+                    });
+                }
+            }
+        } else {
+            quote! {
+                if !self.#id.is_finite() {
+                    return ::core::result::Result::Err(::hinge_core::__private::PsiError {
+                        name: #lit,
+                        message: ::std::format!("is not finite ({})", self.#id),
+                    });
+                }
+            }
+        }
+    });
+    quote! {
+        fn validate(&self, n_hinges: usize) -> ::core::result::Result<(), ::hinge_core::__private::PsiError> {
+            let _ = n_hinges;
+            #(#checks)*
+            ::core::result::Result::Ok(())
+        }
+    }
+}
+
+fn autodiff_impl() -> TokenStream {
+    quote! {
+        type Params = ::hinge_core::__private::HingeQuantities;
+        const USES_STEP: bool = true;
+        fn params(&self, q: &::hinge_core::__private::HingeQuantities) -> Self::Params {
+            *q
+        }
+        #[inline]
+        fn eval(&self, p: &Self::Params, theta: f64) -> [f64; 3] {
+            let (f, d1, d2) = ::hinge_core::__private::num_dual::second_derivative(|t| self.psi(p, t), theta);
+            [f, d1, d2]
+        }
+        fn psi_dual<D: ::hinge_core::__private::DualNum<Primitive = f64> + ::core::marker::Copy>(&self, p: &Self::Params, theta: D) -> D {
+            self.psi(p, theta)
+        }
+    }
+}
+
+fn lit(c: f64) -> TokenStream {
+    if c.is_nan() {
+        quote!(f64::NAN)
+    } else if c == f64::INFINITY {
+        quote!(f64::INFINITY)
+    } else if c == f64::NEG_INFINITY {
+        quote!(f64::NEG_INFINITY)
+    } else {
+        let l = Literal::f64_suffixed(c);
+        quote!(#l)
+    }
+}
+
+/// Nodes reachable from `roots` through θ-dependent nodes, in post-order (operands first).
+fn theta_schedule(arena: &Arena, roots: &[Id]) -> (Vec<Id>, Vec<Id>) {
+    let mut order = Vec::new();
+    let mut hoisted = Vec::new();
+    let mut seen = HashMap::new();
+    fn visit(
+        arena: &Arena,
+        id: Id,
+        order: &mut Vec<Id>,
+        hoisted: &mut Vec<Id>,
+        seen: &mut HashMap<Id, ()>,
+    ) {
+        if seen.insert(id, ()).is_some() {
+            return;
+        }
+        if !arena.depends_on_theta(id) {
+            if arena.as_const(id).is_none() {
+                hoisted.push(id);
+            }
+            return;
+        }
+        for c in arena.children(id) {
+            visit(arena, c, order, hoisted, seen);
+        }
+        order.push(id);
+    }
+    for &r in roots {
+        visit(arena, r, &mut order, &mut hoisted, &mut seen);
+    }
+    (order, hoisted)
+}
+
+fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> Option<TokenStream> {
+    let names: Vec<String> = fields.iter().map(|f| f.ident.to_string()).collect();
+    let mut arena = Arena::default();
+    let psi = {
+        let mut p = Parser::new(&mut arena, &names);
+        let id = p.expr(e);
+        errors.append(&mut p.errors);
+        id
+    };
+    if !errors.is_empty() {
+        return None;
+    }
+    if names.len() + PROVIDED.len() > 63 {
+        errors.push(syn::Error::new(
+            e.span(),
+            "too many fields for a HingeEnergy (at most 57)",
+        ));
+        return None;
+    }
+    let d1 = arena.diff(psi);
+    let d2 = arena.diff(d1);
+    let roots = [psi, d1, d2];
+    let (order, hoisted) = theta_schedule(&arena, &roots);
+    let slot: HashMap<Id, usize> = hoisted.iter().enumerate().map(|(k, &id)| (id, k)).collect();
+    let n_fields = names.len();
+    let step_mask: u64 = (1u64 << (n_fields + 4)) | (1u64 << (n_fields + 5));
+    let uses_step = hoisted
+        .iter()
+        .any(|&h| arena.vars[h.0 as usize] & step_mask != 0);
+    let used_vars = hoisted
+        .iter()
+        .fold(0u64, |acc, &h| acc | arena.vars[h.0 as usize]);
+
+    // θ-free code (params): vars as locals, nested expressions.
+    fn free(arena: &Arena, id: Id) -> TokenStream {
+        let node = arena.node(id);
+        match node {
+            Node::Const(c) => lit(c),
+            Node::Var(i) => {
+                let v = format_ident!("v{}", i);
+                quote!(#v)
+            }
+            Node::Theta => quote!(0.0_f64), // unreachable: θ-free by construction
+            Node::Add(a, b) => bin(free(arena, a), quote!(+), free(arena, b)),
+            Node::Sub(a, b) => bin(free(arena, a), quote!(-), free(arena, b)),
+            Node::Mul(a, b) => bin(free(arena, a), quote!(*), free(arena, b)),
+            Node::Div(a, b) => bin(free(arena, a), quote!(/), free(arena, b)),
+            Node::Neg(a) => {
+                let x = free(arena, a);
+                quote!((-#x))
+            }
+            Node::Powi(a, n) => {
+                let x = free(arena, a);
+                quote!((#x).powi(#n))
+            }
+            Node::Powf(a, b) => {
+                let (x, y) = (free(arena, a), free(arena, b));
+                quote!((#x).powf(#y))
+            }
+            Node::Call(f, a) => {
+                let x = free(arena, a);
+                let m = format_ident!("{}", f.name());
+                quote!((#x).#m())
+            }
+        }
+    }
+    let var_lets: Vec<TokenStream> = (0..n_fields + PROVIDED.len())
+        .filter(|i| used_vars >> i & 1 == 1)
+        .map(|i| {
+            let v = format_ident!("v{}", i);
+            if i < n_fields {
+                let f = &fields[i].ident;
+                if fields[i].per_hinge {
+                    quote!(let #v: f64 = self.#f.get(q.hinge).copied().unwrap_or(f64::NAN);)
+                } else {
+                    quote!(let #v: f64 = self.#f;)
+                }
+            } else {
+                let p = format_ident!("{}", PROVIDED[i - n_fields]);
+                quote!(let #v: f64 = q.#p;)
+            }
+        })
+        .collect();
+    let k = hoisted.len();
+    let hoisted_exprs: Vec<TokenStream> = hoisted.iter().map(|&h| free(&arena, h)).collect();
+    let step_updates: Vec<TokenStream> = hoisted
+        .iter()
+        .enumerate()
+        .filter(|(_, h)| arena.vars[h.0 as usize] & step_mask != 0)
+        .map(|(i, &h)| {
+            let x = free(&arena, h);
+            quote!(p[#i] = #x;)
+        })
+        .collect();
+
+    // θ-dependent code (eval): one `let` per node, operands by reference.
+    let operand = |id: Id| -> TokenStream {
+        if let Some(c) = arena.as_const(id) {
+            lit(c)
+        } else if let Some(&s) = slot.get(&id) {
+            quote!(p[#s])
+        } else {
+            let t = format_ident!("t{}", id.0);
+            quote!(#t)
+        }
+    };
+    let op_code = |id: Id, operand: &dyn Fn(Id) -> TokenStream| -> TokenStream {
+        match arena.node(id) {
+            Node::Theta => quote!(theta),
+            Node::Add(a, b) => bin(operand(a), quote!(+), operand(b)),
+            Node::Sub(a, b) => bin(operand(a), quote!(-), operand(b)),
+            Node::Mul(a, b) => bin(operand(a), quote!(*), operand(b)),
+            Node::Div(a, b) => bin(operand(a), quote!(/), operand(b)),
+            Node::Neg(a) => {
+                let x = operand(a);
+                quote!((-#x))
+            }
+            Node::Powi(a, 2) => {
+                let x = operand(a);
+                quote!((#x * #x))
+            }
+            Node::Powi(a, n) => {
+                let x = operand(a);
+                quote!((#x).powi(#n))
+            }
+            Node::Powf(a, b) => {
+                let (x, y) = (operand(a), operand(b));
+                quote!((#x).powf(#y))
+            }
+            Node::Call(f, a) => {
+                let x = operand(a);
+                let m = format_ident!("{}", f.name());
+                quote!((#x).#m())
+            }
+            Node::Const(c) => lit(c),
+            Node::Var(_) => operand(id),
+        }
+    };
+    let lets: Vec<TokenStream> = order
+        .iter()
+        .map(|&id| {
+            let t = format_ident!("t{}", id.0);
+            let code = op_code(id, &operand);
+            quote!(let #t: f64 = #code;)
+        })
+        .collect();
+    let outs: Vec<TokenStream> = roots.iter().map(|&r| operand(r)).collect();
+    let d2_zero = arena.as_const(d2) == Some(0.0);
+
+    // Generic ψ for num-dual (ψ root only), θ-dependent nodes as D, θ-free ones as f64.
+    let (dual_order, _) = theta_schedule(&arena, &[psi]);
+    let dual_operand = |id: Id| -> (TokenStream, bool) {
+        if let Some(c) = arena.as_const(id) {
+            (lit(c), false)
+        } else if let Some(&s) = slot.get(&id) {
+            (quote!(p[#s]), false)
+        } else {
+            let t = format_ident!("t{}", id.0);
+            (quote!(#t), true)
+        }
+    };
+    let dual_lets: Vec<TokenStream> = dual_order
+        .iter()
+        .map(|&id| {
+            let t = format_ident!("t{}", id.0);
+            let mix = |a: Id, b: Id, op: TokenStream, commutes: bool| -> TokenStream {
+                let ((x, xd), (y, yd)) = (dual_operand(a), dual_operand(b));
+                match (xd, yd) {
+                    (true, _) => quote!((#x #op #y)),
+                    (false, true) if commutes => quote!((#y #op #x)),
+                    (false, true) => quote!((D::from(#x) #op #y)),
+                    (false, false) => quote!(D::from(#x #op #y)),
+                }
+            };
+            let code = match arena.node(id) {
+                Node::Theta => quote!(theta),
+                Node::Add(a, b) => mix(a, b, quote!(+), true),
+                Node::Sub(a, b) => mix(a, b, quote!(-), false),
+                Node::Mul(a, b) => mix(a, b, quote!(*), true),
+                Node::Div(a, b) => mix(a, b, quote!(/), false),
+                Node::Neg(a) => {
+                    let (x, _) = dual_operand(a);
+                    quote!((-#x))
+                }
+                Node::Powi(a, n) => {
+                    let (x, _) = dual_operand(a);
+                    quote!((#x).powi(#n))
+                }
+                Node::Powf(a, b) => {
+                    let ((x, _), (y, _)) = (dual_operand(a), dual_operand(b));
+                    quote!((#x).powf(#y))
+                }
+                Node::Call(f, a) => {
+                    let (x, _) = dual_operand(a);
+                    let m = format_ident!("{}", f.name());
+                    quote!((#x).#m())
+                }
+                Node::Const(c) => {
+                    let l = lit(c);
+                    quote!(D::from(#l))
+                }
+                Node::Var(_) => quote!(D::from(0.0)),
+            };
+            quote!(let #t: D = #code;)
+        })
+        .collect();
+    let dual_result = match dual_operand(psi) {
+        (x, true) => x,
+        (x, false) => quote!(D::from(#x)),
+    };
+    let update = if uses_step {
+        quote! {
+            fn update_step(&self, q: &::hinge_core::__private::HingeQuantities, p: &mut Self::Params) {
+                #(#var_lets)*
+                #(#step_updates)*
+            }
+        }
+    } else {
+        quote!()
+    };
+    let span = e.span();
+    Some(quote_spanned! {span=>
+        type Params = [f64; #k];
+        const D2_IS_ZERO: bool = #d2_zero;
+        const USES_STEP: bool = #uses_step;
+        #[allow(unused_variables)]
+        fn params(&self, q: &::hinge_core::__private::HingeQuantities) -> Self::Params {
+            #(#var_lets)*
+            [#(#hoisted_exprs),*]
+        }
+        #update
+        #[inline]
+        #[allow(unused_variables, clippy::all)]
+        fn eval(&self, p: &Self::Params, theta: f64) -> [f64; 3] {
+            #(#lets)*
+            [#(#outs),*]
+        }
+        #[allow(unused_variables, clippy::all)]
+        fn psi_dual<D: ::hinge_core::__private::DualNum<Primitive = f64> + ::core::marker::Copy>(&self, p: &Self::Params, theta: D) -> D {
+            #(#dual_lets)*
+            #dual_result
+        }
+    })
+}
+
+fn bin(a: TokenStream, op: TokenStream, b: TokenStream) -> TokenStream {
+    quote!((#a #op #b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn expand(src: &str) -> String {
+        let input: DeriveInput = syn::parse_str(src).expect("test input parses");
+        derive(&input).to_string()
+    }
+
+    #[test]
+    fn tan_bending_expansion_hoists_theta_free_parts() {
+        let out = expand(
+            "#[psi(k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2))] struct T { k: f64 }",
+        );
+        println!("{out}");
+        // k·a and 2 tan(θ̄/2) are θ-free: computed in params, not in eval.
+        let eval =
+            &out[out.find("fn eval").expect("eval")..out.find("fn psi_dual").expect("psi_dual")];
+        assert!(!eval.contains("v0"), "fields are not read in eval: {eval}");
+        assert_eq!(
+            eval.matches(". tan ()").count(),
+            1,
+            "one tan per evaluation: {eval}"
+        );
+        assert!(out.contains("const D2_IS_ZERO : bool = false"));
+    }
+
+    #[test]
+    fn affine_energy_has_zero_second_derivative() {
+        let out = expand("#[psi(k * (theta - theta_bar))] struct T { k: f64 }");
+        assert!(out.contains("const D2_IS_ZERO : bool = true"), "{out}");
+    }
+
+    #[test]
+    fn step_quantities_are_refreshed_per_step() {
+        let out = expand("#[psi(c / dt * a * (theta - theta_prev).powi(2))] struct T { c: f64 }");
+        assert!(out.contains("const USES_STEP : bool = true"), "{out}");
+        assert!(out.contains("fn update_step"), "{out}");
+    }
+
+    #[test]
+    fn all_errors_are_reported_at_once() {
+        let out = expand("#[psi(foo * theta.bar() + theta.powf(theta))] struct T { k: f64 }");
+        assert!(out.contains("unknown identifier `foo`"), "{out}");
+        assert!(out.contains("unsupported method `bar`"), "{out}");
+        assert!(out.contains("must not depend on `theta`"), "{out}");
+    }
+}

@@ -1,0 +1,458 @@
+//! A small symbolic engine: a hash-consed expression arena (so equal subexpressions are one node — common
+//! subexpression elimination for free), simplifying constructors, and differentiation with respect to θ.
+
+use std::collections::HashMap;
+
+/// Index of a node in the arena.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Debug, PartialOrd, Ord)]
+pub struct Id(pub u32);
+
+/// Unary functions of the grammar.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
+pub enum Func {
+    Sqrt,
+    Sin,
+    Cos,
+    Tan,
+    Exp,
+    Ln,
+    Atan,
+    Tanh,
+}
+
+impl Func {
+    pub fn name(self) -> &'static str {
+        match self {
+            Func::Sqrt => "sqrt",
+            Func::Sin => "sin",
+            Func::Cos => "cos",
+            Func::Tan => "tan",
+            Func::Exp => "exp",
+            Func::Ln => "ln",
+            Func::Atan => "atan",
+            Func::Tanh => "tanh",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        [
+            Func::Sqrt,
+            Func::Sin,
+            Func::Cos,
+            Func::Tan,
+            Func::Exp,
+            Func::Ln,
+            Func::Atan,
+            Func::Tanh,
+        ]
+        .into_iter()
+        .find(|f| f.name() == s)
+    }
+
+    fn apply(self, x: f64) -> f64 {
+        match self {
+            Func::Sqrt => x.sqrt(),
+            Func::Sin => x.sin(),
+            Func::Cos => x.cos(),
+            Func::Tan => x.tan(),
+            Func::Exp => x.exp(),
+            Func::Ln => x.ln(),
+            Func::Atan => x.atan(),
+            Func::Tanh => x.tanh(),
+        }
+    }
+}
+
+/// A node. `Var(i)` is a θ-free input (struct field or provided quantity) numbered by the caller.
+#[derive(Clone, Copy, PartialEq, Debug)]
+pub enum Node {
+    Const(f64),
+    Theta,
+    Var(usize),
+    Add(Id, Id),
+    Sub(Id, Id),
+    Mul(Id, Id),
+    Div(Id, Id),
+    Neg(Id),
+    Powi(Id, i32),
+    Powf(Id, Id),
+    Call(Func, Id),
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+enum Key {
+    Const(u64),
+    Theta,
+    Var(usize),
+    Add(Id, Id),
+    Sub(Id, Id),
+    Mul(Id, Id),
+    Div(Id, Id),
+    Neg(Id),
+    Powi(Id, i32),
+    Powf(Id, Id),
+    Call(Func, Id),
+}
+
+fn key(n: &Node) -> Key {
+    match *n {
+        Node::Const(c) => Key::Const(c.to_bits()),
+        Node::Theta => Key::Theta,
+        Node::Var(i) => Key::Var(i),
+        Node::Add(a, b) => Key::Add(a, b),
+        Node::Sub(a, b) => Key::Sub(a, b),
+        Node::Mul(a, b) => Key::Mul(a, b),
+        Node::Div(a, b) => Key::Div(a, b),
+        Node::Neg(a) => Key::Neg(a),
+        Node::Powi(a, n) => Key::Powi(a, n),
+        Node::Powf(a, b) => Key::Powf(a, b),
+        Node::Call(f, a) => Key::Call(f, a),
+    }
+}
+
+/// The arena. Every node records whether it depends on θ and which vars it uses.
+#[derive(Default)]
+pub struct Arena {
+    pub nodes: Vec<Node>,
+    pub theta_dep: Vec<bool>,
+    /// Bit set of the vars a node depends on (vars are few: fields + six provided names; ≤ 64 supported).
+    pub vars: Vec<u64>,
+    index: HashMap<Key, Id>,
+    derivative: HashMap<Id, Id>,
+}
+
+impl Arena {
+    pub fn node(&self, id: Id) -> Node {
+        self.nodes[id.0 as usize]
+    }
+
+    pub fn depends_on_theta(&self, id: Id) -> bool {
+        self.theta_dep[id.0 as usize]
+    }
+
+    fn intern(&mut self, n: Node) -> Id {
+        let k = key(&n);
+        if let Some(&id) = self.index.get(&k) {
+            return id;
+        }
+        let children: Vec<Id> = match n {
+            Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
+            Node::Add(a, b)
+            | Node::Sub(a, b)
+            | Node::Mul(a, b)
+            | Node::Div(a, b)
+            | Node::Powf(a, b) => vec![a, b],
+            Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
+        };
+        let dep = matches!(n, Node::Theta) || children.iter().any(|c| self.theta_dep[c.0 as usize]);
+        let mut vars = children
+            .iter()
+            .fold(0u64, |acc, c| acc | self.vars[c.0 as usize]);
+        if let Node::Var(i) = n {
+            vars |= 1u64 << i.min(63);
+        }
+        let id = Id(self.nodes.len() as u32);
+        self.nodes.push(n);
+        self.theta_dep.push(dep);
+        self.vars.push(vars);
+        self.index.insert(k, id);
+        id
+    }
+
+    pub fn constant(&mut self, c: f64) -> Id {
+        // Normalise −0 to 0 so that identities see one zero.
+        self.intern(Node::Const(if c == 0.0 { 0.0 } else { c }))
+    }
+
+    pub fn theta(&mut self) -> Id {
+        self.intern(Node::Theta)
+    }
+
+    pub fn var(&mut self, i: usize) -> Id {
+        self.intern(Node::Var(i))
+    }
+
+    pub fn as_const(&self, id: Id) -> Option<f64> {
+        match self.node(id) {
+            Node::Const(c) => Some(c),
+            _ => None,
+        }
+    }
+
+    /// Splits `c · x` into (c, x) (c = 1 when there is no constant factor).
+    fn coeff(&mut self, id: Id) -> (f64, Id) {
+        match self.node(id) {
+            Node::Mul(a, b) => match self.as_const(a) {
+                Some(c) => (c, b),
+                None => (1.0, id),
+            },
+            Node::Neg(a) => {
+                let (c, x) = self.coeff(a);
+                (-c, x)
+            }
+            _ => (1.0, id),
+        }
+    }
+
+    pub fn add(&mut self, a: Id, b: Id) -> Id {
+        match (self.as_const(a), self.as_const(b)) {
+            (Some(x), Some(y)) => return self.constant(x + y),
+            (Some(x), None) if x == 0.0 => return b,
+            (None, Some(y)) if y == 0.0 => return a,
+            _ => {}
+        }
+        if let Node::Neg(nb) = self.node(b) {
+            return self.sub(a, nb);
+        }
+        if let Node::Neg(na) = self.node(a) {
+            return self.sub(b, na);
+        }
+        // Like terms: c1·x + c2·x = (c1 + c2)·x.
+        let (ca, xa) = self.coeff(a);
+        let (cb, xb) = self.coeff(b);
+        if xa == xb && self.as_const(xa).is_none() {
+            let c = self.constant(ca + cb);
+            return self.mul(c, xa);
+        }
+        // Constants last in sums, so `x + 1` and `1 + x` are one node.
+        if self.as_const(a).is_some() || (self.as_const(b).is_none() && a > b) {
+            return self.intern(Node::Add(b, a));
+        }
+        self.intern(Node::Add(a, b))
+    }
+
+    pub fn sub(&mut self, a: Id, b: Id) -> Id {
+        match (self.as_const(a), self.as_const(b)) {
+            (Some(x), Some(y)) => return self.constant(x - y),
+            (Some(x), None) if x == 0.0 => return self.neg(b),
+            (None, Some(y)) if y == 0.0 => return a,
+            _ => {}
+        }
+        if a == b {
+            return self.constant(0.0);
+        }
+        if let Node::Neg(nb) = self.node(b) {
+            return self.add(a, nb);
+        }
+        let (ca, xa) = self.coeff(a);
+        let (cb, xb) = self.coeff(b);
+        if xa == xb && self.as_const(xa).is_none() {
+            let c = self.constant(ca - cb);
+            return self.mul(c, xa);
+        }
+        self.intern(Node::Sub(a, b))
+    }
+
+    pub fn mul(&mut self, a: Id, b: Id) -> Id {
+        match (self.as_const(a), self.as_const(b)) {
+            (Some(x), Some(y)) => return self.constant(x * y),
+            (Some(x), _) if x == 0.0 => return a,
+            (_, Some(y)) if y == 0.0 => return b,
+            (Some(x), _) if x == 1.0 => return b,
+            (_, Some(y)) if y == 1.0 => return a,
+            (Some(x), _) if x == -1.0 => return self.neg(b),
+            (_, Some(y)) if y == -1.0 => return self.neg(a),
+            (None, Some(_)) => return self.mul(b, a),
+            _ => {}
+        }
+        // c1 · (c2 · x) = (c1 c2) · x
+        if let (Some(c1), Node::Mul(p, q)) = (self.as_const(a), self.node(b))
+            && let Some(c2) = self.as_const(p)
+        {
+            let c = self.constant(c1 * c2);
+            return self.mul(c, q);
+        }
+        if let Node::Neg(na) = self.node(a) {
+            let m = self.mul(na, b);
+            return self.neg(m);
+        }
+        if let Node::Neg(nb) = self.node(b) {
+            let m = self.mul(a, nb);
+            return self.neg(m);
+        }
+        if a == b && self.as_const(a).is_none() {
+            return self.powi(a, 2);
+        }
+        // Canonical order for commutative products of non-constants.
+        if self.as_const(a).is_none() && a > b {
+            return self.intern(Node::Mul(b, a));
+        }
+        self.intern(Node::Mul(a, b))
+    }
+
+    pub fn div(&mut self, a: Id, b: Id) -> Id {
+        match (self.as_const(a), self.as_const(b)) {
+            (Some(x), Some(y)) if y != 0.0 => return self.constant(x / y),
+            (Some(x), _) if x == 0.0 => return a,
+            (_, Some(y)) if y == 1.0 => return a,
+            (_, Some(y)) if y == -1.0 => return self.neg(a),
+            _ => {}
+        }
+        if a == b {
+            return self.constant(1.0);
+        }
+        // Division by a power of two is an exact multiplication by its reciprocal (and cheaper).
+        if let Some(y) = self.as_const(b)
+            && y != 0.0
+            && y.is_finite()
+            && (1.0 / y).is_finite()
+            && (1.0 / y) * y == 1.0
+            && y.abs().log2().fract() == 0.0
+        {
+            let r = self.constant(1.0 / y);
+            return self.mul(r, a);
+        }
+        self.intern(Node::Div(a, b))
+    }
+
+    pub fn neg(&mut self, a: Id) -> Id {
+        match self.node(a) {
+            Node::Const(c) => self.constant(-c),
+            Node::Neg(x) => x,
+            Node::Sub(x, y) => self.sub(y, x),
+            _ => self.intern(Node::Neg(a)),
+        }
+    }
+
+    pub fn powi(&mut self, a: Id, n: i32) -> Id {
+        if let Some(c) = self.as_const(a) {
+            return self.constant(c.powi(n));
+        }
+        match n {
+            0 => self.constant(1.0),
+            1 => a,
+            _ => match self.node(a) {
+                Node::Powi(x, m) if m.checked_mul(n).is_some() => self.powi(x, m * n),
+                _ => self.intern(Node::Powi(a, n)),
+            },
+        }
+    }
+
+    pub fn powf(&mut self, a: Id, b: Id) -> Id {
+        match (self.as_const(a), self.as_const(b)) {
+            (Some(x), Some(y)) => return self.constant(x.powf(y)),
+            (_, Some(y)) if y == 1.0 => return a,
+            (_, Some(y)) if y == 0.0 => return self.constant(1.0),
+            (_, Some(y)) if y.fract() == 0.0 && y.abs() <= 64.0 => return self.powi(a, y as i32),
+            _ => {}
+        }
+        self.intern(Node::Powf(a, b))
+    }
+
+    pub fn call(&mut self, f: Func, a: Id) -> Id {
+        if let Some(c) = self.as_const(a) {
+            return self.constant(f.apply(c));
+        }
+        self.intern(Node::Call(f, a))
+    }
+
+    /// dψ/dθ of node `id`, simplified and interned.
+    pub fn diff(&mut self, id: Id) -> Id {
+        if !self.depends_on_theta(id) {
+            return self.constant(0.0);
+        }
+        if let Some(&d) = self.derivative.get(&id) {
+            return d;
+        }
+        let d = match self.node(id) {
+            Node::Const(_) | Node::Var(_) => self.constant(0.0),
+            Node::Theta => self.constant(1.0),
+            Node::Add(a, b) => {
+                let (da, db) = (self.diff(a), self.diff(b));
+                self.add(da, db)
+            }
+            Node::Sub(a, b) => {
+                let (da, db) = (self.diff(a), self.diff(b));
+                self.sub(da, db)
+            }
+            Node::Mul(a, b) => {
+                let (da, db) = (self.diff(a), self.diff(b));
+                let l = self.mul(da, b);
+                let r = self.mul(a, db);
+                self.add(l, r)
+            }
+            Node::Div(a, b) => {
+                // (a/b)′ = (a′ − (a/b)·b′) / b
+                let (da, db) = (self.diff(a), self.diff(b));
+                let t = self.mul(id, db);
+                let num = self.sub(da, t);
+                self.div(num, b)
+            }
+            Node::Neg(a) => {
+                let da = self.diff(a);
+                self.neg(da)
+            }
+            Node::Powi(a, n) => {
+                // n · a^(n−1) · a′
+                let da = self.diff(a);
+                let p = self.powi(a, n - 1);
+                let c = self.constant(n as f64);
+                let cp = self.mul(c, p);
+                self.mul(cp, da)
+            }
+            Node::Powf(a, b) => {
+                // b · a^(b−1) · a′ (b θ-free, checked by the parser)
+                let da = self.diff(a);
+                let one = self.constant(1.0);
+                let bm1 = self.sub(b, one);
+                let p = self.powf(a, bm1);
+                let bp = self.mul(b, p);
+                self.mul(bp, da)
+            }
+            Node::Call(f, a) => {
+                let da = self.diff(a);
+                let outer = match f {
+                    Func::Sqrt => {
+                        // 1 / (2 sqrt(a))
+                        let two = self.constant(2.0);
+                        let den = self.mul(two, id);
+                        let one = self.constant(1.0);
+                        self.div(one, den)
+                    }
+                    Func::Sin => self.call(Func::Cos, a),
+                    Func::Cos => {
+                        let s = self.call(Func::Sin, a);
+                        self.neg(s)
+                    }
+                    Func::Tan => {
+                        let one = self.constant(1.0);
+                        let t2 = self.powi(id, 2);
+                        self.add(one, t2)
+                    }
+                    Func::Exp => id,
+                    Func::Ln => {
+                        let one = self.constant(1.0);
+                        self.div(one, a)
+                    }
+                    Func::Atan => {
+                        let one = self.constant(1.0);
+                        let a2 = self.powi(a, 2);
+                        let den = self.add(one, a2);
+                        self.div(one, den)
+                    }
+                    Func::Tanh => {
+                        let one = self.constant(1.0);
+                        let t2 = self.powi(id, 2);
+                        self.sub(one, t2)
+                    }
+                };
+                self.mul(outer, da)
+            }
+        };
+        self.derivative.insert(id, d);
+        d
+    }
+
+    /// Children of a node.
+    pub fn children(&self, id: Id) -> Vec<Id> {
+        match self.node(id) {
+            Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
+            Node::Add(a, b)
+            | Node::Sub(a, b)
+            | Node::Mul(a, b)
+            | Node::Div(a, b)
+            | Node::Powf(a, b) => vec![a, b],
+            Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
+        }
+    }
+}
