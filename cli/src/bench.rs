@@ -7,7 +7,8 @@ use std::time::Instant;
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{unit_grid, wave};
-use hinge_core::psi::DiscreteShells;
+use hinge_core::psi::handwritten::{self, Stiffness};
+use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities, TanBending};
 
 /// Arguments of `hinge bench`.
 #[derive(Args)]
@@ -32,6 +33,104 @@ struct Row {
     n_vertices: usize,
     n_hinges: usize,
     median_ms: f64,
+}
+
+/// Number of (θ, hinge) samples per ψ row.
+const PSI_SAMPLES: usize = 1 << 20;
+
+/// Times (ψ, ψ′, ψ″) per θ for one ψ over fixed samples; returns the median in ms.
+fn time_psi<P: HingePsi>(
+    psi: &P,
+    samples: &[(HingeQuantities, f64)],
+    runs: usize,
+    dual: bool,
+) -> f64 {
+    let params: Vec<(P::Params, f64)> = samples.iter().map(|(q, t)| (psi.params(q), *t)).collect();
+    let mut times = Vec::with_capacity(runs);
+    for round in 0..=runs {
+        let start = Instant::now();
+        let mut acc = 0.0;
+        for (p, t) in &params {
+            let [a, b, c] = if dual {
+                let (a, b, c) =
+                    num_dual::second_derivative(|x| psi.psi_dual(p, x), std::hint::black_box(*t));
+                [a, b, c]
+            } else {
+                psi.eval(p, std::hint::black_box(*t))
+            };
+            acc += a + b + c;
+        }
+        std::hint::black_box(acc);
+        if round > 0 {
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    median(times)
+}
+
+/// The ψ rows: macro-generated vs hand-written vs num-dual `Dual2` (of the macro's generic ψ), per energy.
+fn psi_rows(runs: usize) -> Vec<Row> {
+    let mut s = 0x5EEDu64;
+    let mut unit = move || {
+        s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = s;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let samples: Vec<(HingeQuantities, f64)> = (0..PSI_SAMPLES)
+        .map(|i| {
+            let q = HingeQuantities {
+                hinge: i,
+                theta_bar: unit() - 0.5,
+                a: 1.0 + unit(),
+                rest_length: 1.0,
+                rest_area: 1.0,
+                theta_prev: 0.0,
+                dt: 1.0,
+            };
+            (q, 2.0 * (2.0 * unit() - 1.0))
+        })
+        .collect();
+    let row = |name: &str, ms: f64| Row {
+        method: name.to_string(),
+        threads: 1,
+        n_vertices: 0,
+        n_hinges: PSI_SAMPLES,
+        median_ms: ms,
+    };
+    let hk = Stiffness::Uniform(1.0);
+    vec![
+        row(
+            "psi:macro:discrete-shells",
+            time_psi(&DiscreteShells { k: 1.0 }, &samples, runs, false),
+        ),
+        row(
+            "psi:handwritten:discrete-shells",
+            time_psi(
+                &handwritten::DiscreteShells { k: hk.clone() },
+                &samples,
+                runs,
+                false,
+            ),
+        ),
+        row(
+            "psi:dual2:discrete-shells",
+            time_psi(&DiscreteShells { k: 1.0 }, &samples, runs, true),
+        ),
+        row(
+            "psi:macro:tan-bending",
+            time_psi(&TanBending { k: 1.0 }, &samples, runs, false),
+        ),
+        row(
+            "psi:handwritten:tan-bending",
+            time_psi(&handwritten::TanBending { k: hk }, &samples, runs, false),
+        ),
+        row(
+            "psi:dual2:tan-bending",
+            time_psi(&TanBending { k: 1.0 }, &samples, runs, true),
+        ),
+    ]
 }
 
 /// One timed row of the benchmark.
@@ -151,13 +250,16 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             });
         }
     }
+    if wanted("psi") {
+        rows.extend(psi_rows(runs));
+    }
     println!(
-        "{:<18} {:>7} {:>10} {:>9} {:>12} {:>12}",
+        "{:<32} {:>7} {:>10} {:>9} {:>12} {:>12}",
         "method", "threads", "vertices", "hinges", "median_ms", "ns_per_hinge"
     );
     for r in &rows {
         println!(
-            "{:<18} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}",
+            "{:<32} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}",
             r.method,
             r.threads,
             r.n_vertices,
@@ -188,6 +290,20 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                 rf / rl,
                 ad / rf,
                 rf / rp
+            );
+        }
+    }
+    for energy in ["discrete-shells", "tan-bending"] {
+        let get = |kind: &str| {
+            rows.iter()
+                .find(|r| r.method == format!("psi:{kind}:{energy}"))
+                .map(|r| r.median_ms)
+        };
+        if let (Some(m), Some(h), Some(d)) = (get("macro"), get("handwritten"), get("dual2")) {
+            println!(
+                "psi {energy}: macro/handwritten {:.2}x, dual2/macro {:.1}x",
+                m / h,
+                d / m
             );
         }
     }

@@ -10,6 +10,50 @@
 //! - [`hinge`]: θ, tan(θ/2), ∇θ (Eq. 4) and Hess θ (Eqs. 5–6, corrected) of one stencil, with the formulas.
 //! - [`autodiff`]: the same θ, ∇θ, Hess θ by num-dual, the oracle and slow baseline.
 //! - [`grid`], [`obj`]: grid generator, OBJ input and output.
+//! - [`psi`]: the ψ(θ) interface ([`psi::HingePsi`]) and the built-in discrete-shells and tan energies.
+//! - [`bending`]: the assembly engine — energy, forces and the exact sparse Hessian by the
+//!   triangle-refactored (`refactored`), per-hinge (`per_hinge`) or num-dual (`autodiff`) method.
+//! - [`pattern`], [`export`]: the lower-triangle CSC sparsity pattern; full CSR, faer and Matrix Market.
+//!
+//! # Declaring your own energy
+//!
+//! `#[derive(HingeEnergy)]` turns a struct of constants and a ψ expression into a [`psi::HingePsi`]; ψ′ and
+//! ψ″ are derived symbolically at compile time, θ-free parts are computed once per hinge.
+//!
+//! ```
+//! use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+//! use hinge_core::{grid, HingeEnergy};
+//!
+//! /// A bending energy that grows like θ⁴ for large angles.
+//! #[derive(HingeEnergy)]
+//! #[psi(k * a * ((theta - theta_bar).powi(2) + c * (theta - theta_bar).powi(4)))]
+//! struct Stiffening {
+//!     k: f64,
+//!     c: f64,
+//! }
+//!
+//! let rest = grid::unit_grid(8).unwrap();
+//! let bent = grid::wave(rest.positions());
+//! let model = BendingModel::new(&rest, Stiffening { k: 1.0, c: 10.0 }).unwrap();
+//! let e = model.evaluate(&bent, Request::ALL, Method::Refactored, Parallelism::Sequential).unwrap();
+//! assert!(e.energy > 0.0);
+//! // Forces are −gradient; the Hessian is in `model.pattern()`'s lower-triangle CSC order.
+//! assert_eq!(e.hessian.len(), model.pattern().nnz());
+//! let flat = model.evaluate(rest.positions(), Request::ALL, Method::Refactored, Parallelism::Sequential).unwrap();
+//! assert_eq!(flat.energy, 0.0);
+//! ```
+//!
+//! The expression language: `theta`; the struct's `f64` fields (a field marked `#[per_hinge]` is a
+//! `Vec<f64>` with one value per hinge); the provided per-hinge names `theta_bar`, `a` (= 3|ē|²/Ā),
+//! `rest_length`, `rest_area`, and for damping `theta_prev` (θ at the end of the previous step, see
+//! [`bending::BendingModel::set_step`]) and `dt`; literals, `+ - * /`, unary `-`, parentheses, `.powi(INT)`,
+//! `.powf(θ-free)`, `.sqrt()`, `.sin()`, `.cos()`, `.tan()`, `.exp()`, `.ln()`, `.atan()`, `.tanh()` and
+//! `{ let x = …; … }` blocks. Anything else is a compile error pointing at the offending token. For a ψ the
+//! language cannot express, `#[psi(autodiff)]` takes an inherent method
+//! `fn psi<D: DualNum<Primitive = f64> + Copy>(&self, q: &HingeQuantities, theta: D) -> D` and obtains ψ′, ψ″
+//! with num-dual.
+//!
+//! # Topology and one hinge
 //!
 //! ```
 //! use hinge_core::{grid::unit_grid, Topology, hinge::hinge_angle_hessian};
