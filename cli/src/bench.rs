@@ -35,6 +35,10 @@ struct Row {
     median_ms: f64,
 }
 
+/// Consecutive evaluations per row and round; the first `UNTIMED` of each block are not timed.
+const BLOCK: usize = 6;
+const UNTIMED: usize = 2;
+
 /// Number of (θ, hinge) samples per ψ row.
 const PSI_SAMPLES: usize = 1 << 20;
 
@@ -149,8 +153,8 @@ fn median(mut t: Vec<f64>) -> f64 {
     t[t.len() / 2]
 }
 
-/// Runs `hinge bench`. Rows are interleaved (one run of each row per round) so that machine noise hits all
-/// methods alike and the ratios printed at the end compare like with like.
+/// Runs `hinge bench`. Rows are interleaved (one block of runs of each row per round) so that machine noise
+/// hits all methods alike and the ratios printed at the end compare like with like.
 pub fn run(args: BenchArgs) -> Result<(), String> {
     let runs = args.runs.max(5);
     let all = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -186,42 +190,50 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         for round in 0..=runs {
             for (i, &(_, kind)) in kinds.iter().enumerate() {
                 // num-dual is ~10 µs per hinge: five timed runs of it are enough.
-                if matches!(kind, Kind::Full(Method::Autodiff, _)) && round > 5 {
+                let slow = matches!(kind, Kind::Full(Method::Autodiff, _));
+                if slow && round > 5 {
                     continue;
                 }
-                let start = Instant::now();
-                match kind {
-                    Kind::Full(method, threads) => {
-                        let p = if threads == 1 { &one } else { &many };
-                        p.install(|| {
-                            model.evaluate_into(
-                                &x,
-                                Request::ALL,
-                                method,
-                                Parallelism::Rayon,
-                                &mut scratch,
-                                &mut out,
-                            )
-                        })
-                        .map_err(|e| e.to_string())?;
-                    }
-                    Kind::Local(method) => {
-                        let sum = model
-                            .local_blocks_checksum(&x, method, &mut scratch, &mut out)
+                // A block of consecutive evaluations per row: the first ones wake the row's thread pool (an
+                // idle virtual CPU takes milliseconds to come back up to speed: measured here, 2-thread runs
+                // right after a pool switch were no faster than 1-thread ones), the rest are timed. Blocks of
+                // all rows are interleaved, so slow phases of the machine hit every row alike.
+                for rep in 0..if slow { 2 } else { BLOCK } {
+                    let start = Instant::now();
+                    match kind {
+                        Kind::Full(method, threads) => {
+                            let p = if threads == 1 { &one } else { &many };
+                            p.install(|| {
+                                model.evaluate_into(
+                                    &x,
+                                    Request::ALL,
+                                    method,
+                                    Parallelism::Rayon,
+                                    &mut scratch,
+                                    &mut out,
+                                )
+                            })
                             .map_err(|e| e.to_string())?;
-                        std::hint::black_box(sum);
-                    }
-                    Kind::WriteFloor => {
-                        for v in out.hessian.iter_mut() {
-                            *v = std::hint::black_box(1.0);
                         }
-                        std::hint::black_box(&out.hessian);
+                        Kind::Local(method) => {
+                            let sum = model
+                                .local_blocks_checksum(&x, method, &mut scratch, &mut out)
+                                .map_err(|e| e.to_string())?;
+                            std::hint::black_box(sum);
+                        }
+                        Kind::WriteFloor => {
+                            for v in out.hessian.iter_mut() {
+                                *v = std::hint::black_box(1.0);
+                            }
+                            std::hint::black_box(&out.hessian);
+                        }
+                    }
+                    let t = start.elapsed().as_secs_f64() * 1e3;
+                    if round > 0 && rep >= if slow { 1 } else { UNTIMED } {
+                        times[i].push(t); // round 0 is the warm-up
                     }
                 }
-                let t = start.elapsed().as_secs_f64() * 1e3;
-                if round > 0 {
-                    times[i].push(t); // round 0 is the warm-up
-                }
+
                 if let Kind::Full(Method::Refactored, threads) = kind {
                     // Bitwise identity across thread counts, checked on the benchmark itself.
                     match &one_thread_hessian {
