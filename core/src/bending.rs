@@ -151,7 +151,7 @@ pub struct BendingModel<P: HingePsi> {
     topology: Topology,
     rest: Vec<RestHinge>,
     params: Vec<P::Params>,
-    pattern: SymmetricPattern,
+    pattern: std::sync::Arc<SymmetricPattern>,
     /// Triangles with at least one interior edge (the refactored elements).
     tri_elements: Vec<u32>,
     /// Per refactored element: 6 own block slots (00, 11, 22, 01, 12, 20 by corner) and 4 x3 slots for each
@@ -237,75 +237,7 @@ impl<P: HingePsi> BendingModel<P> {
             })
             .map(|t| t as u32)
             .collect();
-        let mut pairs = Vec::new();
-        for &t in &tri_elements {
-            let v = tris[t as usize];
-            pairs.extend([(v[0], v[1]), (v[1], v[2]), (v[2], v[0])]);
-        }
-        if !P::D2_IS_ZERO {
-            pairs.extend(
-                topology
-                    .hinges()
-                    .iter()
-                    .map(|h| (h.vertices[0], h.vertices[3])),
-            );
-        }
-        let pattern = SymmetricPattern::new(n, pairs);
-        let slot = |a: usize, b: usize| {
-            pattern
-                .find(a, b)
-                .map_or(NO_SLOT, |s| pattern.blocks()[s].offset)
-        };
         let bits = topology.orientation_bits();
-        let tri_slots = tri_elements
-            .iter()
-            .map(|&t| {
-                let t = t as usize;
-                let v = tris[t];
-                let mut s = [NO_SLOT; 18];
-                s[..6].copy_from_slice(&[
-                    slot(v[0], v[0]),
-                    slot(v[1], v[1]),
-                    slot(v[2], v[2]),
-                    slot(v[0], v[1]),
-                    slot(v[1], v[2]),
-                    slot(v[2], v[0]),
-                ]);
-                for k in 0..3 {
-                    let e = topology.triangle_edges()[t][k];
-                    let hid = edge_hinge[e];
-                    if hid != NONE && bits[t] >> k & 1 == 1 {
-                        let hv = topology.hinges()[hid as usize].vertices;
-                        s[6 + 4 * k..10 + 4 * k].copy_from_slice(&[
-                            slot(hv[3], hv[3]),
-                            slot(hv[3], hv[0]),
-                            slot(hv[3], hv[1]),
-                            slot(hv[3], hv[2]),
-                        ]);
-                    }
-                }
-                s
-            })
-            .collect();
-        let hinge_slots = topology
-            .hinges()
-            .iter()
-            .map(|h| {
-                let v = h.vertices;
-                [
-                    slot(v[0], v[0]),
-                    slot(v[1], v[1]),
-                    slot(v[2], v[2]),
-                    slot(v[3], v[3]),
-                    slot(v[1], v[0]),
-                    slot(v[2], v[0]),
-                    slot(v[3], v[0]),
-                    slot(v[2], v[1]),
-                    slot(v[3], v[1]),
-                    slot(v[3], v[2]),
-                ]
-            })
-            .collect();
         let mut state_order = Vec::with_capacity(topology.hinges().len());
         for &t in &tri_elements {
             for k in 0..3 {
@@ -340,19 +272,129 @@ impl<P: HingePsi> BendingModel<P> {
             topology,
             rest: rest_h,
             params,
-            pattern,
+            pattern: std::sync::Arc::new(SymmetricPattern::new(n, std::iter::empty())),
             tri_elements,
             tri_states,
             state_order,
             state_of,
             state_vertices,
-            tri_slots,
-            hinge_slots,
+            tri_slots: Vec::new(),
+            hinge_slots: Vec::new(),
             edge_hinge,
             partitions: Vec::new(),
         };
-        model.partitions = model.build_partitions();
+        let own = std::sync::Arc::new(SymmetricPattern::new(n, model.couplings()));
+        model.bind(own)?;
         Ok(model)
+    }
+
+    /// The vertex pairs this energy couples: the three pairs of every triangle with an interior edge, and
+    /// x0–x3 of every hinge unless ψ″ ≡ 0.
+    pub fn couplings(&self) -> Vec<(usize, usize)> {
+        let tris = self.topology.triangles();
+        let mut pairs =
+            Vec::with_capacity(3 * self.tri_elements.len() + self.topology.hinges().len());
+        for &t in &self.tri_elements {
+            let v = tris[t as usize];
+            pairs.extend([(v[0], v[1]), (v[1], v[2]), (v[2], v[0])]);
+        }
+        if !P::D2_IS_ZERO {
+            pairs.extend(
+                self.topology
+                    .hinges()
+                    .iter()
+                    .map(|h| (h.vertices[0], h.vertices[3])),
+            );
+        }
+        pairs
+    }
+
+    /// Binds the model to a (possibly larger, shared) pattern that holds every coupling of
+    /// [`BendingModel::couplings`]: recomputes the value slots and the partition of the work. A
+    /// [`crate::energy::System`] does this so that all its energies write into one matrix.
+    ///
+    /// # Errors
+    /// [`EvalError::Pattern`] when the pattern has another size or lacks a coupling.
+    pub fn bind(&mut self, pattern: std::sync::Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        if pattern.n_vertices() != self.n_vertices() {
+            return Err(EvalError::Pattern {
+                message: format!(
+                    "pattern has {} vertices, mesh has {}",
+                    pattern.n_vertices(),
+                    self.n_vertices()
+                ),
+            });
+        }
+        if let Some(&(a, b)) = self
+            .couplings()
+            .iter()
+            .find(|&&(a, b)| pattern.find(a, b).is_none())
+        {
+            return Err(EvalError::Pattern {
+                message: format!("pattern lacks the coupling of vertices {a} and {b}"),
+            });
+        }
+        let slot = |a: usize, b: usize| {
+            pattern
+                .find(a, b)
+                .map_or(NO_SLOT, |s| pattern.blocks()[s].offset)
+        };
+        let topology = &self.topology;
+        let tris = topology.triangles();
+        let bits = topology.orientation_bits();
+        let edge_hinge = &self.edge_hinge;
+        self.tri_slots = self
+            .tri_elements
+            .iter()
+            .map(|&t| {
+                let t = t as usize;
+                let v = tris[t];
+                let mut s = [NO_SLOT; 18];
+                s[..6].copy_from_slice(&[
+                    slot(v[0], v[0]),
+                    slot(v[1], v[1]),
+                    slot(v[2], v[2]),
+                    slot(v[0], v[1]),
+                    slot(v[1], v[2]),
+                    slot(v[2], v[0]),
+                ]);
+                for k in 0..3 {
+                    let hid = edge_hinge[topology.triangle_edges()[t][k]];
+                    if hid != NONE && bits[t] >> k & 1 == 1 {
+                        let hv = topology.hinges()[hid as usize].vertices;
+                        s[6 + 4 * k..10 + 4 * k].copy_from_slice(&[
+                            slot(hv[3], hv[3]),
+                            slot(hv[3], hv[0]),
+                            slot(hv[3], hv[1]),
+                            slot(hv[3], hv[2]),
+                        ]);
+                    }
+                }
+                s
+            })
+            .collect();
+        self.hinge_slots = topology
+            .hinges()
+            .iter()
+            .map(|h| {
+                let v = h.vertices;
+                [
+                    slot(v[0], v[0]),
+                    slot(v[1], v[1]),
+                    slot(v[2], v[2]),
+                    slot(v[3], v[3]),
+                    slot(v[1], v[0]),
+                    slot(v[2], v[0]),
+                    slot(v[3], v[0]),
+                    slot(v[2], v[1]),
+                    slot(v[3], v[1]),
+                    slot(v[3], v[2]),
+                ]
+            })
+            .collect();
+        self.pattern = pattern;
+        self.partitions = self.build_partitions();
+        Ok(())
     }
 
     fn build_partitions(&self) -> Vec<Partition> {
@@ -525,19 +567,76 @@ impl<P: HingePsi> BendingModel<P> {
         scratch: &mut Scratch,
         out: &mut Evaluation,
     ) -> Result<(), EvalError> {
+        let mut energy = 0.0;
+        self.evaluate_impl(
+            x,
+            request,
+            method,
+            par,
+            scratch,
+            &mut energy,
+            &mut out.gradient,
+            &mut out.hessian,
+            false,
+        )?;
+        out.energy = energy;
+        Ok(())
+    }
+
+    /// Like [`BendingModel::evaluate_into`], but **adds** energy, gradient and Hessian values to the given
+    /// buffers instead of overwriting them (how a [`crate::energy::System`] sums its terms). Empty `gradient`
+    /// or `hessian` slices mean "not requested".
+    ///
+    /// # Errors
+    /// As [`BendingModel::evaluate_into`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn evaluate_add(
+        &self,
+        x: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+        par: Parallelism,
+        scratch: &mut Scratch,
+        energy: &mut f64,
+        gradient: &mut [f64],
+        hessian: &mut [f64],
+    ) -> Result<(), EvalError> {
+        self.evaluate_impl(
+            x, request, method, par, scratch, energy, gradient, hessian, true,
+        )
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn evaluate_impl(
+        &self,
+        x: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+        par: Parallelism,
+        scratch: &mut Scratch,
+        energy: &mut f64,
+        gradient: &mut [f64],
+        hessian: &mut [f64],
+        accumulate: bool,
+    ) -> Result<(), EvalError> {
         check_same_vertex_count(self.n_vertices(), x.len())?;
-        if out.gradient.len() != 3 * self.n_vertices() {
+        let request = Request {
+            gradient: request.gradient && !(accumulate && gradient.is_empty()),
+            hessian: request.hessian && !(accumulate && hessian.is_empty()),
+            ..request
+        };
+        if request.gradient && gradient.len() != 3 * self.n_vertices() {
             return Err(EvalError::BufferLength {
                 buffer: "gradient",
                 expected: 3 * self.n_vertices(),
-                got: out.gradient.len(),
+                got: gradient.len(),
             });
         }
-        if out.hessian.len() != self.pattern.nnz() {
+        if request.hessian && hessian.len() != self.pattern.nnz() {
             return Err(EvalError::BufferLength {
                 buffer: "hessian",
                 expected: self.pattern.nnz(),
-                got: out.hessian.len(),
+                got: hessian.len(),
             });
         }
         if scratch.hinges.len() != self.topology.hinges().len() {
@@ -572,11 +671,12 @@ impl<P: HingePsi> BendingModel<P> {
             return Err(e);
         }
         let states = &scratch.hinges[..];
-        out.energy = if request.value {
+        let e: f64 = if request.value {
             states.iter().map(|s| s.psi).sum()
         } else {
             0.0
         };
+        *energy = if accumulate { *energy + e } else { e };
         if !(request.gradient || request.hessian) {
             return Ok(());
         }
@@ -588,17 +688,10 @@ impl<P: HingePsi> BendingModel<P> {
             request,
             method,
             local_only: false,
+            accumulate,
         };
-        let grad: &mut [f64] = if request.gradient {
-            &mut out.gradient
-        } else {
-            &mut []
-        };
-        let hess: &mut [f64] = if request.hessian {
-            &mut out.hessian
-        } else {
-            &mut []
-        };
+        let grad: &mut [f64] = if request.gradient { gradient } else { &mut [] };
+        let hess: &mut [f64] = if request.hessian { hessian } else { &mut [] };
         match par {
             Parallelism::Sequential => {
                 for p in &self.partitions {
@@ -645,6 +738,7 @@ impl<P: HingePsi> BendingModel<P> {
             request: Request::ALL,
             method,
             local_only: true,
+            accumulate: false,
         };
         let mut sum = 0.0;
         for p in &self.partitions {
@@ -709,6 +803,8 @@ struct Ctx<'a, P: HingePsi> {
     request: Request,
     method: Method,
     local_only: bool,
+    /// Add to the output instead of zeroing it first.
+    accumulate: bool,
 }
 
 /// The part of the output one partition owns.
@@ -804,8 +900,10 @@ impl<P: HingePsi> Ctx<'_, P> {
     }
 
     fn run_partition(&self, p: &Partition, grad: &mut [f64], hess: &mut [f64]) -> f64 {
-        grad.fill(0.0);
-        hess.fill(0.0);
+        if !self.accumulate {
+            grad.fill(0.0);
+            hess.fill(0.0);
+        }
         let mut own = Owned {
             vertices: p.vertices.clone(),
             values: if hess.is_empty() {

@@ -177,6 +177,12 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// An energy cannot be bound to a sparsity pattern.
+    #[error("sparsity pattern: {message}")]
+    Pattern {
+        /// What does not fit.
+        message: String,
+    },
     /// A time step that is not positive and finite.
     #[error("time step dt = {dt} must be positive and finite")]
     Step {

@@ -71,6 +71,7 @@
 
 pub mod autodiff;
 pub mod bending;
+pub mod energy;
 pub mod error;
 pub mod export;
 pub mod geometry;

@@ -1,0 +1,362 @@
+//! Energies of any stencil (vertex, edge, triangle, hinge) and their composition into a [`System`]: one
+//! sparsity pattern holding exactly the couplings the energies create, one matrix they all add into, and one
+//! geometric pass for all hinge terms (compose ψ terms as a tuple in one [`HingeTerm`]).
+//!
+//! An [`Energy`] declares its couplings, is bound once to the system's pattern (where it precomputes its
+//! value slots), then adds its energy, gradient and Hessian to an [`Accumulator`] under a [`Request`]:
+//! nothing unrequested is computed. Implement it for your own energies outside this crate.
+
+use std::sync::Arc;
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::bending::{BendingModel, Method, Parallelism, Request, Scratch};
+use crate::error::EvalError;
+use crate::mesh::check_same_vertex_count;
+use crate::pattern::SymmetricPattern;
+use crate::psi::HingePsi;
+
+/// Where energies add their gradient and Hessian. An empty `gradient` or `hessian` means not requested.
+#[derive(Debug)]
+pub struct Accumulator<'a> {
+    /// The system's pattern.
+    pub pattern: &'a SymmetricPattern,
+    /// Gradient, `3n` entries (empty if not requested).
+    pub gradient: &'a mut [f64],
+    /// Hessian values in the pattern's lower-triangle CSC order (empty if not requested).
+    pub hessian: &'a mut [f64],
+}
+
+impl Accumulator<'_> {
+    /// Adds `g` to vertex `v`'s gradient (no-op when the gradient is not requested).
+    #[inline]
+    pub fn add_gradient(&mut self, v: usize, g: &Vector3<f64>) {
+        if let Some(dst) = self.gradient.get_mut(3 * v..3 * v + 3) {
+            dst[0] += g.x;
+            dst[1] += g.y;
+            dst[2] += g.z;
+        }
+    }
+
+    /// Adds block `b` = ∂²E/∂x_r∂x_c at the pattern's block `slot` (from [`SymmetricPattern::find`]); `r`
+    /// and `c` are the block's row and column vertices in either order (the transpose is stored when
+    /// `r < c`). No-op when the Hessian is not requested.
+    #[inline]
+    pub fn add_block(&mut self, slot: usize, r: usize, c: usize, b: &Matrix3<f64>) {
+        if self.hessian.is_empty() {
+            return;
+        }
+        let Some(s) = self.pattern.blocks().get(slot) else {
+            return;
+        };
+        let off = s.offset.map(|o| o as usize);
+        for cc in 0..3 {
+            let o = off[cc];
+            if r == c {
+                for rr in cc..3 {
+                    self.hessian[o + rr - cc] += b[(rr, cc)];
+                }
+            } else if r > c {
+                for rr in 0..3 {
+                    self.hessian[o + rr] += b[(rr, cc)];
+                }
+            } else {
+                for rr in 0..3 {
+                    self.hessian[o + rr] += b[(cc, rr)];
+                }
+            }
+        }
+    }
+}
+
+/// An energy over the vertices of one mesh.
+pub trait Energy: Send + Sync {
+    /// A short name for reports (`"membrane"`, `"tan-bending"`, …).
+    fn name(&self) -> &str;
+
+    /// Number of vertices of the mesh it is defined on.
+    fn n_vertices(&self) -> usize;
+
+    /// Appends the vertex pairs whose Hessian block this energy can make non-zero (diagonal blocks are
+    /// always present and need not be listed).
+    fn couplings(&self, out: &mut Vec<(usize, usize)>);
+
+    /// Binds to the system's pattern, which holds at least [`Energy::couplings`]: precompute slots here.
+    ///
+    /// # Errors
+    /// [`EvalError::Pattern`] when the pattern does not fit.
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError>;
+
+    /// Adds the requested quantities at positions `x` and returns the energy (0 if not requested).
+    ///
+    /// # Errors
+    /// A typed [`EvalError`] naming the offending element; then `acc` holds no meaningful values.
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        par: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError>;
+
+    /// Starts a time step (positions at the end of the previous step, step size). Default: nothing.
+    ///
+    /// # Errors
+    /// As the implementation says.
+    fn begin_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
+        let _ = (x_prev, dt);
+        Ok(())
+    }
+}
+
+/// A hinge energy ψ (one ψ, or a tuple of ψ terms sharing one geometric pass) as a system [`Energy`].
+pub struct HingeTerm<P: HingePsi> {
+    name: String,
+    model: BendingModel<P>,
+    method: Method,
+    scratch: Scratch,
+}
+
+impl<P: HingePsi> std::fmt::Debug for HingeTerm<P> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HingeTerm")
+            .field("name", &self.name)
+            .field("method", &self.method)
+            .finish()
+    }
+}
+
+impl<P: HingePsi> HingeTerm<P> {
+    /// Wraps a bending model, evaluated with `method`.
+    pub fn new(name: impl Into<String>, model: BendingModel<P>, method: Method) -> Self {
+        let scratch = model.new_scratch();
+        Self {
+            name: name.into(),
+            model,
+            method,
+            scratch,
+        }
+    }
+
+    /// The wrapped model.
+    pub fn model(&self) -> &BendingModel<P> {
+        &self.model
+    }
+
+    /// Changes the method.
+    pub fn set_method(&mut self, method: Method) {
+        self.method = method;
+    }
+}
+
+impl<P: HingePsi + Send> Energy for HingeTerm<P>
+where
+    P::Params: Send + Sync,
+{
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn n_vertices(&self) -> usize {
+        self.model.n_vertices()
+    }
+
+    fn couplings(&self, out: &mut Vec<(usize, usize)>) {
+        out.extend(self.model.couplings());
+    }
+
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        self.model.bind(Arc::clone(pattern))
+    }
+
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        par: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        let mut e = 0.0;
+        self.model.evaluate_add(
+            x,
+            request,
+            self.method,
+            par,
+            &mut self.scratch,
+            &mut e,
+            acc.gradient,
+            acc.hessian,
+        )?;
+        Ok(e)
+    }
+
+    fn begin_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
+        self.model.set_step(x_prev, dt)
+    }
+}
+
+/// The result of evaluating a [`System`]: total energy, energy per term, gradient and Hessian.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SystemEvaluation {
+    /// Total energy (sum of `terms`, in term order).
+    pub energy: f64,
+    /// Energy of each term, in the order the terms were given.
+    pub terms: Vec<f64>,
+    /// Gradient, `3n` entries.
+    pub gradient: Vec<f64>,
+    /// Hessian values in [`System::pattern`]'s lower-triangle CSC order.
+    pub hessian: Vec<f64>,
+}
+
+/// Several energies over one mesh, assembled into one gradient and one sparse Hessian.
+pub struct System {
+    n_vertices: usize,
+    terms: Vec<Box<dyn Energy>>,
+    pattern: Arc<SymmetricPattern>,
+}
+
+impl std::fmt::Debug for System {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("System")
+            .field("n_vertices", &self.n_vertices)
+            .field(
+                "terms",
+                &self
+                    .terms
+                    .iter()
+                    .map(|t| t.name().to_string())
+                    .collect::<Vec<_>>(),
+            )
+            .field("nnz", &self.pattern.nnz())
+            .finish()
+    }
+}
+
+impl System {
+    /// Composes `terms` over `n_vertices` vertices: builds the union pattern of their couplings and binds
+    /// every term to it.
+    ///
+    /// # Errors
+    /// [`EvalError::Pattern`] when a term is defined on another number of vertices.
+    pub fn new(n_vertices: usize, mut terms: Vec<Box<dyn Energy>>) -> Result<Self, EvalError> {
+        let mut pairs = Vec::new();
+        for t in &terms {
+            if t.n_vertices() != n_vertices {
+                return Err(EvalError::Pattern {
+                    message: format!(
+                        "term `{}` has {} vertices, the system {}",
+                        t.name(),
+                        t.n_vertices(),
+                        n_vertices
+                    ),
+                });
+            }
+            t.couplings(&mut pairs);
+        }
+        let pattern = Arc::new(SymmetricPattern::new(n_vertices, pairs));
+        for t in &mut terms {
+            t.bind(&pattern)?;
+        }
+        Ok(Self {
+            n_vertices,
+            terms,
+            pattern,
+        })
+    }
+
+    /// The shared pattern.
+    pub fn pattern(&self) -> &SymmetricPattern {
+        &self.pattern
+    }
+
+    /// Number of vertices.
+    pub fn n_vertices(&self) -> usize {
+        self.n_vertices
+    }
+
+    /// The names of the terms, in order.
+    pub fn term_names(&self) -> Vec<&str> {
+        self.terms.iter().map(|t| t.name()).collect()
+    }
+
+    /// Output buffers for this system.
+    pub fn new_output(&self) -> SystemEvaluation {
+        SystemEvaluation {
+            energy: 0.0,
+            terms: vec![0.0; self.terms.len()],
+            gradient: vec![0.0; 3 * self.n_vertices],
+            hessian: vec![0.0; self.pattern.nnz()],
+        }
+    }
+
+    /// Starts a time step for every term (see [`Energy::begin_step`]).
+    ///
+    /// # Errors
+    /// The first term's error; terms before it have already started the step.
+    pub fn begin_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
+        for t in &mut self.terms {
+            t.begin_step(x_prev, dt)?;
+        }
+        Ok(())
+    }
+
+    /// Evaluates every term at `x` into `out` (overwritten). Unrequested outputs are left untouched.
+    ///
+    /// # Errors
+    /// The first failing term's error, or a length mismatch.
+    pub fn evaluate_into(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        par: Parallelism,
+        out: &mut SystemEvaluation,
+    ) -> Result<(), EvalError> {
+        check_same_vertex_count(self.n_vertices, x.len())?;
+        if out.gradient.len() != 3 * self.n_vertices
+            || out.hessian.len() != self.pattern.nnz()
+            || out.terms.len() != self.terms.len()
+        {
+            *out = self.new_output();
+        }
+        if request.gradient {
+            out.gradient.fill(0.0);
+        }
+        if request.hessian {
+            out.hessian.fill(0.0);
+        }
+        let mut acc = Accumulator {
+            pattern: &self.pattern,
+            gradient: if request.gradient {
+                &mut out.gradient
+            } else {
+                &mut []
+            },
+            hessian: if request.hessian {
+                &mut out.hessian
+            } else {
+                &mut []
+            },
+        };
+        out.energy = 0.0;
+        for (t, e) in self.terms.iter_mut().zip(out.terms.iter_mut()) {
+            *e = t.add_to(x, request, par, &mut acc)?;
+            out.energy += *e;
+        }
+        Ok(())
+    }
+
+    /// Convenience: evaluates into fresh buffers.
+    ///
+    /// # Errors
+    /// As [`System::evaluate_into`].
+    pub fn evaluate(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        par: Parallelism,
+    ) -> Result<SystemEvaluation, EvalError> {
+        let mut out = self.new_output();
+        self.evaluate_into(x, request, par, &mut out)?;
+        Ok(out)
+    }
+}
