@@ -177,6 +177,14 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// An element of some energy (a spring, a membrane triangle, a contact) cannot be evaluated.
+    #[error("{element}: {message}")]
+    Element {
+        /// The element, named (for example `spring on edge (3, 4)`).
+        element: String,
+        /// What is wrong.
+        message: String,
+    },
     /// An energy cannot be bound to a sparsity pattern.
     #[error("sparsity pattern: {message}")]
     Pattern {

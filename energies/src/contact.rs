@@ -1,0 +1,180 @@
+//! Contact with analytic obstacles as a smooth one-sided quadratic penalty.
+//!
+//! With `d(x)` the signed distance of a vertex to the obstacle and `δ ≥ 0` a margin, each vertex contributes
+//! `½ κ (δ − d)²` when `d < δ`, else nothing (C¹: energy and gradient are continuous at `d = δ`). With
+//! `s = δ − d > 0`: `∇E = −κ s ∇d`, `Hess E = κ ∇d ∇dᵀ − κ s Hess d`.
+//! - Plane through `p` with unit normal `n`: `d = n · (x − p)`, `∇d = n`, `Hess d = 0`.
+//! - Sphere of centre `c`, radius `r`: `d = |x − c| − r`, `∇d = u = (x − c)/|x − c|`,
+//!   `Hess d = (I − u uᵀ)/|x − c|` (so the exact Hessian has a negative part inside the sphere).
+
+use std::sync::Arc;
+
+use hinge_core::EvalError;
+use hinge_core::bending::{Parallelism, Request};
+use hinge_core::energy::{Accumulator, Energy};
+use hinge_core::nalgebra::{Matrix3, Vector3};
+use hinge_core::pattern::SymmetricPattern;
+
+/// An analytic obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Obstacle {
+    /// A sphere.
+    Sphere {
+        /// Centre.
+        center: Vector3<f64>,
+        /// Radius.
+        radius: f64,
+    },
+    /// A half-space bounded by a plane; vertices are pushed to the side `normal` points to.
+    Plane {
+        /// A point on the plane.
+        point: Vector3<f64>,
+        /// Unit normal (normalised on construction).
+        normal: Vector3<f64>,
+    },
+}
+
+/// A penalty contact energy against one obstacle.
+#[derive(Debug, Clone)]
+pub struct Contact {
+    obstacle: Obstacle,
+    stiffness: f64,
+    margin: f64,
+    n_vertices: usize,
+    diag: Vec<usize>,
+}
+
+impl Contact {
+    /// Penalty contact of stiffness `stiffness` (κ) and margin `margin` (δ) against `obstacle`.
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for non-finite or negative parameters or a zero plane normal.
+    pub fn new(
+        n_vertices: usize,
+        obstacle: Obstacle,
+        stiffness: f64,
+        margin: f64,
+    ) -> Result<Self, EvalError> {
+        let bad = |m: String| EvalError::Element {
+            element: "contact".into(),
+            message: m,
+        };
+        if !(stiffness >= 0.0 && stiffness.is_finite() && margin >= 0.0 && margin.is_finite()) {
+            return Err(bad(format!(
+                "stiffness {stiffness} and margin {margin} must be finite and non-negative"
+            )));
+        }
+        let obstacle = match obstacle {
+            Obstacle::Sphere { center, radius } => {
+                if !(radius > 0.0 && radius.is_finite() && center.iter().all(|c| c.is_finite())) {
+                    return Err(bad(format!(
+                        "sphere radius {radius} / centre {center:?} invalid"
+                    )));
+                }
+                obstacle
+            }
+            Obstacle::Plane { point, normal } => {
+                let len = normal.norm();
+                if !(len > 0.0 && len.is_finite() && point.iter().all(|c| c.is_finite())) {
+                    return Err(bad(format!(
+                        "plane normal {normal:?} / point {point:?} invalid"
+                    )));
+                }
+                Obstacle::Plane {
+                    point,
+                    normal: normal / len,
+                }
+            }
+        };
+        Ok(Self {
+            obstacle,
+            stiffness,
+            margin,
+            n_vertices,
+            diag: Vec::new(),
+        })
+    }
+
+    /// Signed distance of `p` to the obstacle.
+    pub fn distance(&self, p: &Vector3<f64>) -> f64 {
+        match self.obstacle {
+            Obstacle::Sphere { center, radius } => (p - center).norm() - radius,
+            Obstacle::Plane { point, normal } => normal.dot(&(p - point)),
+        }
+    }
+}
+
+impl Energy for Contact {
+    fn name(&self) -> &str {
+        match self.obstacle {
+            Obstacle::Sphere { .. } => "contact-sphere",
+            Obstacle::Plane { .. } => "contact-plane",
+        }
+    }
+
+    fn n_vertices(&self) -> usize {
+        self.n_vertices
+    }
+
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        crate::util::same_size(pattern, self.n_vertices)?;
+        self.diag = (0..self.n_vertices)
+            .map(|v| crate::util::slot(pattern, v, v))
+            .collect::<Result<_, _>>()?;
+        Ok(())
+    }
+
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        hinge_core::mesh::check_same_vertex_count(self.n_vertices, x.len())?;
+        let (kappa, delta) = (self.stiffness, self.margin);
+        let mut e = 0.0;
+        for (i, p) in x.iter().enumerate() {
+            let (d, grad_d, hess_d) = match self.obstacle {
+                Obstacle::Plane { point, normal } => (normal.dot(&(p - point)), normal, None),
+                Obstacle::Sphere { center, radius } => {
+                    let r = p - center;
+                    let len = r.norm();
+                    if len - radius >= delta {
+                        continue;
+                    }
+                    if !(len > 0.0) {
+                        return Err(EvalError::Element {
+                            element: format!("contact of vertex {i}"),
+                            message: "the vertex is at the sphere's centre: the contact normal is undefined".into(),
+                        });
+                    }
+                    let u = r / len;
+                    (
+                        len - radius,
+                        u,
+                        Some((Matrix3::identity() - u * u.transpose()) / len),
+                    )
+                }
+            };
+            let s = delta - d;
+            if !(s > 0.0) {
+                continue;
+            }
+            e += 0.5 * kappa * s * s;
+            if request.gradient {
+                acc.add_gradient(i, &(grad_d * (-kappa * s)));
+            }
+            if request.hessian && !self.diag.is_empty() {
+                let mut h = grad_d * grad_d.transpose() * kappa;
+                if let Some(hd) = hess_d {
+                    h -= hd * (kappa * s);
+                }
+                acc.add_block(self.diag[i], i, i, &h);
+            }
+        }
+        Ok(if request.value { e } else { 0.0 })
+    }
+}

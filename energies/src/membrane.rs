@@ -1,0 +1,189 @@
+//! St. Venant–Kirchhoff triangle membrane (plane stress).
+//!
+//! Per triangle with rest vertices `X0, X1, X2`, a 2D rest frame gives `Dm = [X1 − X0, X2 − X0]` (2×2);
+//! deformed `Ds = [x1 − x0, x2 − x0]` (3×2), `F = Ds Dm⁻¹` (3×2), Green strain `E = ½(FᵀF − I)` and
+//!
+//! ```text
+//! W = μ tr(E²) + ½ λ tr(E)²,    energy = h Ā W,    S = 2μE + λ tr(E) I,
+//! ```
+//! with `μ = Y/(2(1 + ν))`, `λ = Yν/(1 − ν²)` (plane stress), thickness `h` and rest area `Ā`. With
+//! `b_v = Dm⁻ᵀ g_v`, `g_0 = (−1, −1)`, `g_1 = (1, 0)`, `g_2 = (0, 1)`, and `f_k = Fᵀ e_k` (row `k` of F):
+//!
+//! ```text
+//! ∇_v E = h Ā F S b_v
+//! ∂²E/∂x_v,k ∂x_w,l = h Ā [ μ((f_k·f_l)(b_v·b_w) + (f_k·b_w)(f_l·b_v)) + λ (f_k·b_v)(f_l·b_w) + δ_kl b_vᵀ S b_w ]
+//! ```
+//! (the exact Hessian; indefinite under compression).
+
+use std::sync::Arc;
+
+use hinge_core::bending::{Parallelism, Request};
+use hinge_core::energy::{Accumulator, Energy};
+use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
+use hinge_core::pattern::SymmetricPattern;
+use hinge_core::{EvalError, TriMesh};
+
+/// The StVK membrane over every triangle of a mesh.
+#[derive(Debug, Clone)]
+pub struct StvkMembrane {
+    mu: f64,
+    lambda: f64,
+    thickness: f64,
+    triangles: Vec<[usize; 3]>,
+    /// Per triangle: b_0, b_1, b_2 and the rest area.
+    rest: Vec<([Vector2<f64>; 3], f64)>,
+    n_vertices: usize,
+    /// Per triangle: slots of (0,0), (1,1), (2,2), (0,1), (1,2), (2,0).
+    slots: Vec<[usize; 6]>,
+}
+
+impl StvkMembrane {
+    /// A membrane of Young's modulus `young`, Poisson ratio `poisson` and thickness `thickness` over `rest`.
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for parameters out of range (`Y ≥ 0`, `−1 < ν < 0.5`, `h > 0`, all finite).
+    pub fn new(
+        rest: &TriMesh,
+        young: f64,
+        poisson: f64,
+        thickness: f64,
+    ) -> Result<Self, EvalError> {
+        if !(young >= 0.0
+            && young.is_finite()
+            && poisson > -1.0
+            && poisson < 0.5
+            && thickness > 0.0
+            && thickness.is_finite())
+        {
+            return Err(EvalError::Element {
+                element: "membrane".into(),
+                message: format!(
+                    "Young's modulus {young}, Poisson ratio {poisson}, thickness {thickness} out of range"
+                ),
+            });
+        }
+        let x = rest.positions();
+        let rest_data = rest
+            .triangles()
+            .iter()
+            .map(|t| {
+                let (e1, e2) = (x[t[1]] - x[t[0]], x[t[2]] - x[t[0]]);
+                let n = e1.cross(&e2);
+                let area = 0.5 * n.norm();
+                let t1 = e1.normalize();
+                let t2 = n.normalize().cross(&t1);
+                let dm = Matrix2::new(e1.dot(&t1), e2.dot(&t1), 0.0, e2.dot(&t2));
+                // Rest triangles are validated non-degenerate, so Dm is invertible.
+                let dm_inv_t = dm.try_inverse().unwrap_or_else(Matrix2::zeros).transpose();
+                let b = [
+                    Vector2::new(-1.0, -1.0),
+                    Vector2::new(1.0, 0.0),
+                    Vector2::new(0.0, 1.0),
+                ]
+                .map(|g| dm_inv_t * g);
+                (b, area)
+            })
+            .collect();
+        Ok(Self {
+            mu: young / (2.0 * (1.0 + poisson)),
+            lambda: young * poisson / (1.0 - poisson * poisson),
+            thickness,
+            triangles: rest.triangles().to_vec(),
+            rest: rest_data,
+            n_vertices: rest.n_vertices(),
+            slots: Vec::new(),
+        })
+    }
+}
+
+impl Energy for StvkMembrane {
+    fn name(&self) -> &str {
+        "membrane"
+    }
+
+    fn n_vertices(&self) -> usize {
+        self.n_vertices
+    }
+
+    fn couplings(&self, out: &mut Vec<(usize, usize)>) {
+        for t in &self.triangles {
+            out.extend([(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
+        }
+    }
+
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        crate::util::same_size(pattern, self.n_vertices)?;
+        let s = |a, b| crate::util::slot(pattern, a, b);
+        self.slots = self
+            .triangles
+            .iter()
+            .map(|t| {
+                Ok([
+                    s(t[0], t[0])?,
+                    s(t[1], t[1])?,
+                    s(t[2], t[2])?,
+                    s(t[0], t[1])?,
+                    s(t[1], t[2])?,
+                    s(t[2], t[0])?,
+                ])
+            })
+            .collect::<Result<_, EvalError>>()?;
+        Ok(())
+    }
+
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        hinge_core::mesh::check_same_vertex_count(self.n_vertices, x.len())?;
+        let (mu, lambda) = (self.mu, self.lambda);
+        let mut energy = 0.0;
+        for (ti, t) in self.triangles.iter().enumerate() {
+            let (b, area) = &self.rest[ti];
+            let w = self.thickness * area;
+            // F = Ds Dm⁻¹ = Σ_v x_v b_vᵀ (the b_v sum to zero, so translations drop out).
+            let f: Matrix3x2<f64> = x[t[0]] * b[0].transpose()
+                + x[t[1]] * b[1].transpose()
+                + x[t[2]] * b[2].transpose();
+            let e = (f.transpose() * f - Matrix2::identity()) * 0.5;
+            let tr = e.trace();
+            energy += w * (mu * (e * e).trace() + 0.5 * lambda * tr * tr);
+            if !(request.gradient || request.hessian) {
+                continue;
+            }
+            let s = e * (2.0 * mu) + Matrix2::identity() * (lambda * tr);
+            if request.gradient {
+                let fs = f * s;
+                for v in 0..3 {
+                    acc.add_gradient(t[v], &(fs * b[v] * w));
+                }
+            }
+            if request.hessian && !self.slots.is_empty() {
+                let rows: [Vector2<f64>; 3] = [0, 1, 2].map(|k| f.row(k).transpose());
+                let block = |v: usize, wv: usize| {
+                    let (bv, bw) = (b[v], b[wv]);
+                    let sb = bv.dot(&(s * bw));
+                    Matrix3::from_fn(|k, l| {
+                        let (fk, fl) = (rows[k], rows[l]);
+                        let mut h = mu * (fk.dot(&fl) * bv.dot(&bw) + fk.dot(&bw) * fl.dot(&bv))
+                            + lambda * fk.dot(&bv) * fl.dot(&bw);
+                        if k == l {
+                            h += sb;
+                        }
+                        h * w
+                    })
+                };
+                let sl = self.slots[ti];
+                for v in 0..3 {
+                    acc.add_block(sl[v], t[v], t[v], &block(v, v));
+                    let v1 = (v + 1) % 3;
+                    acc.add_block(sl[3 + v], t[v], t[v1], &block(v, v1));
+                }
+            }
+        }
+        Ok(if request.value { energy } else { 0.0 })
+    }
+}

@@ -1,0 +1,376 @@
+//! Every energy of hinge-energies: gradient and Hessian against finite differences, zero energy and force at
+//! rest where the model says so, rigid-motion invariance; systems compose additively; hinge terms share one
+//! pass; the tan energy near ±π.
+
+use hinge_core::TriMesh;
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::grid::{Diagonal, grid};
+use hinge_core::nalgebra::{Rotation3, Vector3};
+use hinge_core::psi::HingePsi;
+use hinge_energies::bending::{
+    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
+};
+use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::quadratic::QuadraticBending;
+use hinge_energies::spring::MassSpring;
+use hinge_tests::*;
+
+/// A flat rest grid and a deformed state (stretched a little, bent, jittered).
+fn meshes() -> (TriMesh, Vec<Vector3<f64>>) {
+    let rest = grid(5, 4, 1.0, 0.8, Diagonal::Alternating).unwrap();
+    let mut rng = SplitMix64(17);
+    let def = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            Vector3::new(
+                1.05 * p.x + 0.02 * rng.symmetric(),
+                0.97 * p.y + 0.02 * rng.symmetric(),
+                0.15 * (2.0 * p.x).sin() + 0.03 * rng.symmetric(),
+            )
+        })
+        .collect();
+    (rest, def)
+}
+
+fn hinge<P: HingePsi + Send + 'static>(rest: &TriMesh, psi: P) -> Box<dyn Energy>
+where
+    P::Params: Send + Sync,
+{
+    Box::new(HingeTerm::new(
+        "hinge",
+        BendingModel::new(rest, psi).unwrap(),
+        Method::Refactored,
+    ))
+}
+
+fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
+    // (name, energy, zero energy and force at rest, rigid-motion invariant)
+    let n = rest.n_vertices();
+    vec![
+        (
+            "discrete-shells",
+            hinge(rest, DiscreteShells { k: 1.3 }),
+            true,
+        ),
+        ("tan-bending", hinge(rest, TanBending { k: 0.7 }), true),
+        ("willmore", hinge(rest, Willmore { k: 0.9 }), true),
+        ("bridson", hinge(rest, Bridson { k: 1.1 }), true),
+        (
+            "viscous-damping",
+            hinge(rest, ViscousDamping { kd: 0.2 }),
+            true,
+        ),
+        (
+            "mass-spring",
+            Box::new(MassSpring::new(rest, 50.0).unwrap()),
+            true,
+        ),
+        (
+            "mass-spring-psd",
+            Box::new(
+                MassSpring::new(rest, 50.0)
+                    .unwrap()
+                    .drop_compressive_term(true),
+            ),
+            true,
+        ),
+        (
+            "quadratic-bending",
+            Box::new(QuadraticBending::new(rest, 0.8).unwrap()),
+            true,
+        ),
+        (
+            "membrane",
+            Box::new(StvkMembrane::new(rest, 1000.0, 0.3, 0.01).unwrap()),
+            true,
+        ),
+        (
+            "gravity",
+            Box::new(
+                Gravity::new(lumped_masses(rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
+            ),
+            false,
+        ),
+        (
+            "contact-sphere",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Sphere {
+                        center: Vector3::new(0.5, 0.4, -0.8),
+                        radius: 0.9,
+                    },
+                    300.0,
+                    0.05,
+                )
+                .unwrap(),
+            ),
+            false,
+        ),
+        (
+            "contact-plane",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Plane {
+                        point: Vector3::new(0.0, 0.0, 0.05),
+                        normal: Vector3::new(0.1, 0.0, 1.0),
+                    },
+                    300.0,
+                    0.02,
+                )
+                .unwrap(),
+            ),
+            false,
+        ),
+    ]
+}
+
+#[test]
+fn every_energy_matches_finite_differences() {
+    let (rest, def) = meshes();
+    for (name, e, _) in all_energies(&rest) {
+        let mut sys = System::new(rest.n_vertices(), vec![e]).unwrap();
+        let ev = sys
+            .evaluate(&def, Request::ALL, Parallelism::Sequential)
+            .unwrap();
+        let n = 3 * def.len();
+        let h = 1e-6;
+        let (mut fd_g, mut fd_h) = (vec![0.0; n], vec![0.0; n * n]);
+        for i in 0..n {
+            let mut xp = def.clone();
+            let mut xm = def.clone();
+            xp[i / 3][i % 3] += h;
+            xm[i / 3][i % 3] -= h;
+            let ep = sys
+                .evaluate(&xp, Request::GRADIENT, Parallelism::Sequential)
+                .unwrap();
+            let em = sys
+                .evaluate(&xm, Request::GRADIENT, Parallelism::Sequential)
+                .unwrap();
+            fd_g[i] = (ep.energy - em.energy) / (2.0 * h);
+            for j in 0..n {
+                fd_h[i * n + j] = (ep.gradient[j] - em.gradient[j]) / (2.0 * h);
+            }
+        }
+        let p = sys.pattern();
+        let dense = sym_dense(p.col_ptr(), p.row_idx(), &ev.hessian);
+        let (eg, eh) = (rel_error(&ev.gradient, &fd_g), rel_error(&dense, &fd_h));
+        println!(
+            "{name:>18}: E {:.6e}  gradient vs FD {eg:.2e}  hessian vs FD {eh:.2e}",
+            ev.energy
+        );
+        assert!(
+            ev.energy.is_finite() && ev.energy != 0.0,
+            "{name}: energy {}",
+            ev.energy
+        );
+        assert!(eg < 1e-7, "{name}: gradient {eg}");
+        // The compressive-term-free spring Hessian is deliberately not exact.
+        if name != "mass-spring-psd" {
+            assert!(eh < 1e-6, "{name}: hessian {eh}");
+        }
+    }
+}
+
+#[test]
+fn rest_state_and_rigid_motions() {
+    let (rest, def) = meshes();
+    let rot = Rotation3::new(Vector3::new(0.3, -0.7, 0.5));
+    let shift = Vector3::new(1.0, -2.0, 0.5);
+    let moved: Vec<_> = def.iter().map(|p| rot * p + shift).collect();
+    let rest_moved: Vec<_> = rest.positions().iter().map(|p| rot * p + shift).collect();
+    for (name, e, internal) in all_energies(&rest) {
+        if !internal {
+            continue;
+        }
+        let mut sys = System::new(rest.n_vertices(), vec![e]).unwrap();
+        // Zero energy and force at rest, and at any rigid motion of the rest state.
+        for x in [rest.positions().to_vec(), rest_moved.clone()] {
+            let r = sys
+                .evaluate(&x, Request::ALL, Parallelism::Sequential)
+                .unwrap();
+            let g = r.gradient.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            assert!(r.energy.abs() < 1e-12, "{name}: rest energy {}", r.energy);
+            assert!(g < 1e-9, "{name}: rest force {g}");
+        }
+        // Energy invariant under a rigid motion of a deformed state.
+        let a = sys
+            .evaluate(&def, Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy;
+        let b = sys
+            .evaluate(&moved, Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy;
+        assert!(((a - b) / a).abs() < 1e-11, "{name}: {a} vs {b}");
+    }
+}
+
+#[test]
+fn systems_compose_additively_and_hinge_terms_share_one_pass() {
+    let (rest, def) = meshes();
+    let n = rest.n_vertices();
+    let parts = || -> Vec<Box<dyn Energy>> {
+        vec![
+            Box::new(StvkMembrane::new(&rest, 1000.0, 0.3, 0.01).unwrap()),
+            hinge(&rest, TanBending { k: 0.7 }),
+            Box::new(
+                Gravity::new(lumped_masses(&rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
+            ),
+        ]
+    };
+    let mut whole = System::new(n, parts()).unwrap();
+    let w = whole
+        .evaluate(&def, Request::ALL, Parallelism::Rayon)
+        .unwrap();
+    assert_eq!(whole.term_names(), vec!["membrane", "hinge", "gravity"]);
+    let mut total_g = vec![0.0; 3 * n];
+    let mut total_e = 0.0;
+    let wp = whole.pattern();
+    let mut total_h = vec![0.0; (3 * n) * (3 * n)];
+    for (k, part) in parts().into_iter().enumerate() {
+        let mut s = System::new(n, vec![part]).unwrap();
+        let r = s.evaluate(&def, Request::ALL, Parallelism::Rayon).unwrap();
+        assert_eq!(r.energy, w.terms[k]);
+        total_e += r.energy;
+        for (t, g) in total_g.iter_mut().zip(&r.gradient) {
+            *t += g;
+        }
+        let p = s.pattern();
+        for (t, h) in total_h
+            .iter_mut()
+            .zip(sym_dense(p.col_ptr(), p.row_idx(), &r.hessian))
+        {
+            *t += h;
+        }
+    }
+    assert!(((w.energy - total_e) / total_e).abs() < 1e-14);
+    assert!(rel_error(&w.gradient, &total_g) < 1e-14);
+    assert!(rel_error(&sym_dense(wp.col_ptr(), wp.row_idx(), &w.hessian), &total_h) < 1e-14);
+
+    // Elastic + damping in one pass (a tuple) equals two passes.
+    let mut one = System::new(
+        n,
+        vec![hinge(
+            &rest,
+            (TanBending { k: 0.7 }, ViscousDamping { kd: 0.2 }),
+        )],
+    )
+    .unwrap();
+    let mut two = System::new(
+        n,
+        vec![
+            hinge(&rest, TanBending { k: 0.7 }),
+            hinge(&rest, ViscousDamping { kd: 0.2 }),
+        ],
+    )
+    .unwrap();
+    let prev: Vec<_> = def.iter().map(|p| p * 0.99).collect();
+    one.begin_step(&prev, 0.01).unwrap();
+    two.begin_step(&prev, 0.01).unwrap();
+    let a = one
+        .evaluate(&def, Request::ALL, Parallelism::Rayon)
+        .unwrap();
+    let b = two
+        .evaluate(&def, Request::ALL, Parallelism::Rayon)
+        .unwrap();
+    assert!(((a.energy - b.energy) / b.energy).abs() < 1e-14);
+    assert!(rel_error(&a.gradient, &b.gradient) < 1e-14);
+    assert!(rel_error(&a.hessian, &b.hessian) < 1e-14);
+}
+
+#[test]
+fn tan_energy_near_pi_is_finite_or_a_typed_error() {
+    // Two triangles folded towards θ = ±π.
+    let quad = vec![
+        Vector3::new(0.0, 0.0, 0.0),
+        Vector3::new(1.0, 0.0, 0.0),
+        Vector3::new(1.0, 1.0, 0.0),
+        Vector3::new(0.0, 1.0, 0.0),
+    ];
+    let rest = TriMesh::new(quad.clone(), vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    let model = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
+    let mut last = 0.0;
+    for gap in [1e-1, 1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 0.0] {
+        for sign in [1.0, -1.0] {
+            // Rotate vertex 3 about the diagonal 0–2 to angle π − gap.
+            let phi = std::f64::consts::PI - gap;
+            let axis = Vector3::new(1.0, 1.0, 0.0).normalize();
+            let rot = Rotation3::from_axis_angle(
+                &hinge_core::nalgebra::Unit::new_normalize(axis),
+                sign * phi,
+            );
+            let mut x = quad.clone();
+            x[3] = rot * x[3];
+            match model.evaluate(
+                &x,
+                Request::ALL,
+                Method::Refactored,
+                Parallelism::Sequential,
+            ) {
+                Ok(e) => {
+                    assert!(
+                        e.energy.is_finite()
+                            && e.gradient.iter().chain(&e.hessian).all(|v| v.is_finite()),
+                        "gap {gap}"
+                    );
+                    if sign > 0.0 {
+                        assert!(e.energy >= last, "the barrier grows as the fold closes");
+                        last = e.energy;
+                    }
+                }
+                Err(err) => assert!(
+                    matches!(
+                        err,
+                        hinge_core::EvalError::NonFiniteEnergy { .. }
+                            | hinge_core::EvalError::Hinge { .. }
+                    ),
+                    "{err}"
+                ),
+            }
+        }
+    }
+    assert!(last > 1e10, "energy near the fold: {last}");
+}
+
+#[test]
+fn material_stiffness_and_bad_parameters() {
+    // Eq. 11 for a 1 mm steel-like shell.
+    let k = stiffness_from_material(2e11, 1e-3, 0.3);
+    assert!((k - 2e11 * 1e-9 / (24.0 * 0.91)).abs() < 1e-6);
+    let (rest, _) = meshes();
+    assert!(MassSpring::new(&rest, f64::NAN).is_err());
+    assert!(StvkMembrane::new(&rest, 1.0, 0.6, 0.1).is_err());
+    assert!(
+        Gravity::new(vec![1.0, -1.0], Vector3::zeros())
+            .unwrap_err()
+            .to_string()
+            .contains("vertex 1")
+    );
+    assert!(
+        Contact::new(
+            3,
+            Obstacle::Plane {
+                point: Vector3::zeros(),
+                normal: Vector3::zeros()
+            },
+            1.0,
+            0.0
+        )
+        .is_err()
+    );
+    assert!(
+        hinge_energies::pins::Pins::new(4, vec![1, 9])
+            .unwrap_err()
+            .to_string()
+            .contains('9')
+    );
+    let pins = hinge_energies::pins::Pins::new(4, vec![2, 1, 2]).unwrap();
+    assert_eq!(pins.vertices(), &[1, 2]);
+    assert_eq!(pins.free_dofs().iter().filter(|f| !**f).count(), 6);
+}
