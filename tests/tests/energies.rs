@@ -374,3 +374,152 @@ fn material_stiffness_and_bad_parameters() {
     assert_eq!(pins.vertices(), &[1, 2]);
     assert_eq!(pins.free_dofs().iter().filter(|f| !**f).count(), 6);
 }
+
+/// Independent generic implementations of the non-hinge energies, differentiated by num-dual: the
+/// closed-form gradients and Hessians must agree with them.
+mod autodiff_oracle {
+    use super::*;
+    use hinge_core::nalgebra::{SMatrix, SVector};
+    use num_dual::{Dual2SVec64, DualNum, hessian};
+
+    fn v3<D: Copy>(x: &[D], i: usize) -> [D; 3] {
+        [x[3 * i], x[3 * i + 1], x[3 * i + 2]]
+    }
+
+    fn norm<D: DualNum<Primitive = f64> + Copy>(a: [D; 3]) -> D {
+        (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+    }
+
+    /// Dense full Hessian and gradient of a one-energy system.
+    fn closed_form(e: Box<dyn Energy>, x: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>) {
+        let mut s = System::new(x.len(), vec![e]).unwrap();
+        let r = s.evaluate(x, Request::ALL, Parallelism::Sequential).unwrap();
+        let p = s.pattern();
+        (r.gradient.clone(), sym_dense(p.col_ptr(), p.row_idx(), &r.hessian))
+    }
+
+    fn flat<const N: usize>(x: &[Vector3<f64>]) -> SVector<f64, N> {
+        SVector::from_iterator(x.iter().flat_map(|p| [p.x, p.y, p.z]))
+    }
+
+    fn compare<const N: usize>(name: &str, (g, h): (Vec<f64>, Vec<f64>), ad: (f64, SVector<f64, N>, SMatrix<f64, N, N>)) {
+        let hd: Vec<f64> = (0..N * N).map(|k| ad.2[(k / N, k % N)]).collect();
+        let (eg, eh) = (rel_error(&g, ad.1.as_slice()), rel_error(&h, &hd));
+        println!("{name}: gradient vs num-dual {eg:.2e}, hessian {eh:.2e}");
+        assert!(eg < 1e-13 && eh < 1e-13, "{name}: {eg} {eh}");
+    }
+
+    #[test]
+    fn spring_membrane_contact_quadratic_match_num_dual() {
+        let tri = vec![Vector3::new(0.0, 0.0, 0.0), Vector3::new(1.0, 0.1, 0.0), Vector3::new(0.2, 0.9, 0.0)];
+        let rest = TriMesh::new(tri.clone(), vec![[0, 1, 2]]).unwrap();
+        let def = vec![Vector3::new(0.05, -0.02, 0.1), Vector3::new(1.1, 0.2, -0.05), Vector3::new(0.1, 1.0, 0.2)];
+        let x = flat::<9>(&def);
+
+        // Springs: ½k(l − L)² per edge.
+        let k = 7.0;
+        let lens: Vec<f64> = [[1, 2], [0, 2], [0, 1]].iter().map(|&[i, j]: &[usize; 2]| (tri[i] - tri[j]).norm()).collect();
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<9>, 9>| {
+                let s = v.as_slice();
+                let mut e = Dual2SVec64::<9>::from(0.0);
+                for (n, &[i, j]) in [[1usize, 2usize], [0, 2], [0, 1]].iter().enumerate() {
+                    let (a, b) = (v3(s, i), v3(s, j));
+                    let l = norm([a[0] - b[0], a[1] - b[1], a[2] - b[2]]);
+                    let d = l - lens[n];
+                    e += d * d * (0.5 * k);
+                }
+                e
+            },
+            &x,
+        );
+        compare("mass-spring", closed_form(Box::new(MassSpring::new(&rest, k).unwrap()), &def), ad);
+
+        // StVK: h A (μ tr(E²) + λ/2 tr(E)²) with E from the metric of the deformed edges against the rest
+        // metric, written without a rest frame: E = ½ (Dm⁻ᵀ Dsᵀ Ds Dm⁻¹ − I) via the rest Gram matrix.
+        let (young, nu, h) = (900.0, 0.35, 0.02);
+        let (mu, lambda) = (young / (2.0 * (1.0 + nu)), young * nu / (1.0 - nu * nu));
+        let (r1, r2) = (tri[1] - tri[0], tri[2] - tri[0]);
+        let gram = hinge_core::nalgebra::Matrix2::new(r1.dot(&r1), r1.dot(&r2), r1.dot(&r2), r2.dot(&r2));
+        let gi = gram.try_inverse().unwrap();
+        let area = 0.5 * r1.cross(&r2).norm();
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<9>, 9>| {
+                let s = v.as_slice();
+                let (p0, p1, p2) = (v3(s, 0), v3(s, 1), v3(s, 2));
+                let d1 = [p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]];
+                let d2 = [p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]];
+                let dot = |a: [Dual2SVec64<9>; 3], b: [Dual2SVec64<9>; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+                // Deformed Gram matrix g; strain in the rest metric: M = G⁻¹ g − I, tr(E) = ½ tr(M),
+                // tr(E²) = ¼ tr(M²).
+                let g = [[dot(d1, d1), dot(d1, d2)], [dot(d1, d2), dot(d2, d2)]];
+                let m = |i: usize, j: usize| g[0][j] * gi[(i, 0)] + g[1][j] * gi[(i, 1)] - if i == j { 1.0 } else { 0.0 };
+                let tr = (m(0, 0) + m(1, 1)) * 0.5;
+                let tr2 = (m(0, 0) * m(0, 0) + m(0, 1) * m(1, 0) * 2.0 + m(1, 1) * m(1, 1)) * 0.25;
+                (tr2 * mu + tr * tr * (0.5 * lambda)) * (h * area)
+            },
+            &x,
+        );
+        compare("membrane", closed_form(Box::new(StvkMembrane::new(&rest, young, nu, h).unwrap()), &def), ad);
+
+        // Sphere contact: ½κ(δ − (|x − c| − r))² where active.
+        let (c, r, kappa, delta) = (Vector3::new(0.3, 0.3, -0.8), 1.0, 50.0, 0.1);
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<9>, 9>| {
+                let s = v.as_slice();
+                let mut e = Dual2SVec64::<9>::from(0.0);
+                for i in 0..3 {
+                    let p = v3(s, i);
+                    let d = norm([p[0] - c.x, p[1] - c.y, p[2] - c.z]) - r;
+                    if d.re < delta {
+                        let sgap = -d + delta;
+                        e += sgap * sgap * (0.5 * kappa);
+                    }
+                }
+                e
+            },
+            &x,
+        );
+        let contact = Contact::new(3, Obstacle::Sphere { center: c, radius: r }, kappa, delta).unwrap();
+        compare("contact-sphere", closed_form(Box::new(contact), &def), ad);
+    }
+
+    #[test]
+    fn quadratic_bending_matches_num_dual() {
+        let quad = vec![
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(1.1, 0.9, 0.0),
+            Vector3::new(-0.1, 1.0, 0.0),
+        ];
+        let rest = TriMesh::new(quad, vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+        let def = vec![
+            Vector3::new(0.0, 0.0, 0.1),
+            Vector3::new(1.0, 0.1, 0.0),
+            Vector3::new(1.0, 1.0, -0.1),
+            Vector3::new(0.0, 1.0, 0.3),
+        ];
+        let qb = QuadraticBending::new(&rest, 2.0).unwrap();
+        let (stencil, q, c) = qb.weights().next().unwrap();
+        // Flat rest: q annihilates constants and the rest positions.
+        assert!(q.iter().sum::<f64>().abs() < 1e-14);
+        let rp = rest.positions();
+        let s: Vector3<f64> = (0..4).map(|i| rp[stencil[i]] * q[i]).sum();
+        assert!(s.norm() < 1e-14);
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<12>, 12>| {
+                let sl = v.as_slice();
+                let mut acc = [Dual2SVec64::<12>::from(0.0); 3];
+                for i in 0..4 {
+                    let p = v3(sl, stencil[i]);
+                    for a in 0..3 {
+                        acc[a] += p[a] * q[i];
+                    }
+                }
+                (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]) * (0.5 * c)
+            },
+            &flat::<12>(&def),
+        );
+        compare("quadratic-bending", closed_form(Box::new(qb), &def), ad);
+    }
+}
