@@ -4,15 +4,91 @@ use std::path::PathBuf;
 
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
-use hinge_core::psi::{DiscreteShells, HingePsi, TanBending};
+use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::nalgebra::Vector3;
 use hinge_core::{TriMesh, export, obj};
+use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
+use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::quadratic::QuadraticBending;
+use hinge_energies::spring::MassSpring;
 
-/// Energies `hinge eval` knows, with their parameters and defaults.
-pub const ENERGIES: [(&str, &str); 2] = [
-    ("discrete-shells", "k=1 (psi = k*a*(theta - theta_bar)^2)"),
+/// An energy `hinge eval` knows: name, parameters with defaults, description.
+pub type EnergyEntry = (&'static str, &'static [(&'static str, f64)], &'static str);
+
+/// Energies `hinge eval` knows.
+pub const ENERGIES: [EnergyEntry; 11] = [
+    (
+        "discrete-shells",
+        &[("k", 1.0)],
+        "k*a*(theta - theta_bar)^2",
+    ),
     (
         "tan-bending",
-        "k=1 (psi = k*a*(2tan(theta/2) - 2tan(theta_bar/2))^2)",
+        &[("k", 1.0)],
+        "k*a*(2tan(theta/2) - 2tan(theta_bar/2))^2",
+    ),
+    (
+        "willmore",
+        &[("k", 1.0)],
+        "k*a*(2sin(theta/2) - 2sin(theta_bar/2))^2",
+    ),
+    (
+        "bridson",
+        &[("k", 1.0)],
+        "psi' = k*a*(sin(theta/2) - sin(theta_bar/2)), psi(theta_bar) = 0",
+    ),
+    (
+        "viscous-damping",
+        &[("kd", 1.0), ("dt", 0.01)],
+        "(kd/dt)*a*(2tan(theta/2) - 2tan(theta_prev/2))^2, theta_prev from the rest mesh",
+    ),
+    (
+        "mass-spring",
+        &[("k", 1.0), ("compressive", 1.0)],
+        "sum over edges of k/2 (l - L)^2; compressive=0 drops the compressive Hessian term",
+    ),
+    (
+        "quadratic-bending",
+        &[("k", 1.0)],
+        "Bergou et al. 2006, constant Hessian",
+    ),
+    (
+        "membrane",
+        &[("young", 1000.0), ("poisson", 0.3), ("thickness", 0.001)],
+        "St. Venant-Kirchhoff membrane",
+    ),
+    (
+        "gravity",
+        &[("density", 1.0), ("g", 9.81)],
+        "lumped masses (density per area) under gravity along -z",
+    ),
+    (
+        "contact-sphere",
+        &[
+            ("cx", 0.0),
+            ("cy", 0.0),
+            ("cz", 0.0),
+            ("radius", 0.5),
+            ("stiffness", 1000.0),
+            ("margin", 0.0),
+        ],
+        "one-sided quadratic penalty outside a sphere",
+    ),
+    (
+        "contact-plane",
+        &[
+            ("px", 0.0),
+            ("py", 0.0),
+            ("pz", 0.0),
+            ("nx", 0.0),
+            ("ny", 0.0),
+            ("nz", 1.0),
+            ("stiffness", 1000.0),
+            ("margin", 0.0),
+        ],
+        "one-sided quadratic penalty above a plane",
     ),
 ];
 
@@ -45,8 +121,19 @@ pub struct EvalArgs {
     list_energies: bool,
 }
 
-fn parse_params(energy: &str, params: &[String]) -> Result<f64, String> {
-    let mut k = 1.0;
+/// Parameters of `energy` from its defaults and `KEY=VALUE` overrides.
+fn parse_params(
+    energy: &str,
+    params: &[String],
+) -> Result<std::collections::BTreeMap<&'static str, f64>, String> {
+    let (_, defaults, _) = ENERGIES.iter().find(|e| e.0 == energy).ok_or_else(|| {
+        format!(
+            "unknown energy `{energy}` (known: {})",
+            ENERGIES.map(|e| e.0).join(", ")
+        )
+    })?;
+    let mut values: std::collections::BTreeMap<&'static str, f64> =
+        defaults.iter().copied().collect();
     for p in params {
         let (key, value) = p
             .split_once('=')
@@ -57,23 +144,106 @@ fn parse_params(energy: &str, params: &[String]) -> Result<f64, String> {
         if !v.is_finite() {
             return Err(format!("parameter `{key}` must be finite, got {value}"));
         }
-        match key {
-            "k" => k = v,
-            _ => {
-                return Err(format!(
-                    "energy `{energy}` has no parameter `{key}` (it has: k)"
-                ));
-            }
-        }
+        let Some(slot) = values.iter_mut().find(|(k, _)| **k == key).map(|(_, v)| v) else {
+            let names: Vec<&str> = defaults.iter().map(|d| d.0).collect();
+            return Err(format!(
+                "energy `{energy}` has no parameter `{key}` (it has: {})",
+                names.join(", ")
+            ));
+        };
+        *slot = v;
     }
-    Ok(k)
+    Ok(values)
+}
+
+/// Builds the one-term system for `energy`.
+fn build(
+    energy: &str,
+    p: &std::collections::BTreeMap<&'static str, f64>,
+    rest: &TriMesh,
+    method: Method,
+) -> Result<System, String> {
+    let g = |k: &str| p.get(k).copied().unwrap_or(0.0);
+    let model_err = |e: hinge_core::EvalError| format!("{energy}: {e}");
+    let n = rest.n_vertices();
+    let term: Box<dyn Energy> = match energy {
+        "discrete-shells" => Box::new(HingeTerm::new(
+            energy,
+            BendingModel::new(rest, DiscreteShells { k: g("k") }).map_err(model_err)?,
+            method,
+        )),
+        "tan-bending" => Box::new(HingeTerm::new(
+            energy,
+            BendingModel::new(rest, TanBending { k: g("k") }).map_err(model_err)?,
+            method,
+        )),
+        "willmore" => Box::new(HingeTerm::new(
+            energy,
+            BendingModel::new(rest, Willmore { k: g("k") }).map_err(model_err)?,
+            method,
+        )),
+        "bridson" => Box::new(HingeTerm::new(
+            energy,
+            BendingModel::new(rest, Bridson { k: g("k") }).map_err(model_err)?,
+            method,
+        )),
+        "viscous-damping" => {
+            let mut m =
+                BendingModel::new(rest, ViscousDamping { kd: g("kd") }).map_err(model_err)?;
+            m.set_step(rest.positions(), g("dt")).map_err(model_err)?;
+            Box::new(HingeTerm::new(energy, m, method))
+        }
+        "mass-spring" => Box::new(
+            MassSpring::new(rest, g("k"))
+                .map_err(model_err)?
+                .drop_compressive_term(g("compressive") == 0.0),
+        ),
+        "quadratic-bending" => Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?),
+        "membrane" => Box::new(
+            StvkMembrane::new(rest, g("young"), g("poisson"), g("thickness")).map_err(model_err)?,
+        ),
+        "gravity" => Box::new(
+            Gravity::new(
+                lumped_masses(rest, g("density")),
+                Vector3::new(0.0, 0.0, -g("g")),
+            )
+            .map_err(model_err)?,
+        ),
+        "contact-sphere" => Box::new(
+            Contact::new(
+                n,
+                Obstacle::Sphere {
+                    center: Vector3::new(g("cx"), g("cy"), g("cz")),
+                    radius: g("radius"),
+                },
+                g("stiffness"),
+                g("margin"),
+            )
+            .map_err(model_err)?,
+        ),
+        "contact-plane" => Box::new(
+            Contact::new(
+                n,
+                Obstacle::Plane {
+                    point: Vector3::new(g("px"), g("py"), g("pz")),
+                    normal: Vector3::new(g("nx"), g("ny"), g("nz")),
+                },
+                g("stiffness"),
+                g("margin"),
+            )
+            .map_err(model_err)?,
+        ),
+        other => return Err(format!("unknown energy `{other}`")),
+    };
+    System::new(n, vec![term]).map_err(|e| e.to_string())
 }
 
 /// Runs `hinge eval`.
 pub fn run(args: EvalArgs) -> Result<(), String> {
     if args.list_energies {
-        for (name, params) in ENERGIES {
-            println!("{name}\t{params}");
+        for (name, params, what) in ENERGIES {
+            let p: Vec<String> = params.iter().map(|(k, v)| format!("{k}={v}")).collect();
+            println!("{name}\t{}\t{what}", p.join(" "));
         }
         return Ok(());
     }
@@ -86,7 +256,7 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
             args.method
         )
     })?;
-    let k = parse_params(energy, &args.params)?;
+    let params = parse_params(energy, &args.params)?;
     let rest = obj::read_obj(rest_path).map_err(|e| e.to_string())?;
     let deformed = match &args.deformed {
         Some(p) => crate::read_deformed(&rest, p)?,
@@ -102,73 +272,31 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .num_threads(threads)
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
-    let ctx = EvalCtx {
-        rest: &rest,
-        deformed: &deformed,
-        method,
-        pool: &pool,
-        threads,
-        out,
-    };
-    match energy.as_str() {
-        "discrete-shells" => ctx.eval(DiscreteShells { k }),
-        "tan-bending" => ctx.eval(TanBending { k }),
-        other => Err(format!(
-            "unknown energy `{other}` (known: {})",
-            ENERGIES.map(|e| e.0).join(", ")
-        )),
-    }
-}
-
-struct EvalCtx<'a> {
-    rest: &'a TriMesh,
-    deformed: &'a TriMesh,
-    method: Method,
-    pool: &'a rayon::ThreadPool,
-    threads: usize,
-    out: &'a std::path::Path,
-}
-
-impl EvalCtx<'_> {
-    fn eval<P: HingePsi>(&self, psi: P) -> Result<(), String> {
-        let (rest, deformed, method, pool, threads, out) = (
-            self.rest,
-            self.deformed,
-            self.method,
-            self.pool,
-            self.threads,
-            self.out,
-        );
-        let model = BendingModel::new(rest, psi).map_err(|e| format!("rest mesh: {e}"))?;
-        let e = pool
-            .install(|| {
-                model.evaluate(
-                    deformed.positions(),
-                    Request::ALL,
-                    method,
-                    Parallelism::Rayon,
-                )
-            })
-            .map_err(|e| format!("deformed mesh: {e}"))?;
-        std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-        let write =
-            |name: &str, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
-                let path = out.join(name);
-                let file =
-                    std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-                f(std::io::BufWriter::new(file)).map_err(|e| format!("{}: {e}", path.display()))
-            };
-        write("gradient.txt", &|w| export::write_vector(w, &e.gradient))?;
-        write("hessian.mtx", &|w| {
-            export::write_matrix_market(w, model.pattern(), &e.hessian)
-        })?;
-        println!(
-            "{{\"energy\": {:?}, \"method\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {}}}",
-            e.energy,
-            method.name(),
-            model.n_vertices(),
-            model.topology().hinges().len()
-        );
-        Ok(())
-    }
+    let mut system = build(energy, &params, &rest, method)?;
+    let e = pool
+        .install(|| system.evaluate(deformed.positions(), Request::ALL, Parallelism::Rayon))
+        .map_err(|e| format!("deformed mesh: {e}"))?;
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let write =
+        |name: &str, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
+            let path = out.join(name);
+            let file =
+                std::fs::File::create(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+            f(std::io::BufWriter::new(file)).map_err(|e| format!("{}: {e}", path.display()))
+        };
+    write("gradient.txt", &|w| export::write_vector(w, &e.gradient))?;
+    write("hessian.mtx", &|w| {
+        export::write_matrix_market(w, system.pattern(), &e.hessian)
+    })?;
+    let n_hinges = hinge_core::Topology::new(rest.n_vertices(), rest.triangles())
+        .map_err(|e| e.to_string())?
+        .hinges()
+        .len();
+    println!(
+        "{{\"energy\": {:?}, \"method\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {n_hinges}}}",
+        e.energy,
+        method.name(),
+        rest.n_vertices(),
+    );
+    Ok(())
 }

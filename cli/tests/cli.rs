@@ -197,3 +197,47 @@ fn bad_input_is_one_line_and_nonzero() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn every_listed_energy_evaluates() {
+    let dir = tmp("all");
+    let rest = dir.join("rest.obj");
+    let def = dir.join("def.obj");
+    let mesh =
+        hinge_core::grid::grid(4, 3, 1.0, 1.0, hinge_core::grid::Diagonal::Alternating).unwrap();
+    hinge_core::obj::write_obj(&rest, mesh.positions(), mesh.triangles()).unwrap();
+    let bent: Vec<_> = hinge_core::grid::wave(mesh.positions())
+        .iter()
+        .map(|p| p + hinge_core::nalgebra::Vector3::new(0.0, 0.0, -0.2))
+        .collect();
+    hinge_core::obj::write_obj(&def, &bent, mesh.triangles()).unwrap();
+    let list = hinge(&["eval", "--list-energies"]);
+    let names: Vec<String> = String::from_utf8_lossy(&list.stdout)
+        .lines()
+        .map(|l| l.split('\t').next().unwrap().to_string())
+        .collect();
+    assert_eq!(names.len(), 11);
+    for name in &names {
+        let out = dir.join(name);
+        let o = hinge(&[
+            "eval",
+            "--rest",
+            rest.to_str().unwrap(),
+            "--deformed",
+            def.to_str().unwrap(),
+            "--energy",
+            name,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert!(json["energy"].as_f64().unwrap().is_finite(), "{name}");
+        assert!(out.join("hessian.mtx").exists() && out.join("gradient.txt").exists());
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

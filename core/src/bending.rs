@@ -182,12 +182,15 @@ struct Partition {
     hinges: Vec<u32>,
 }
 
+/// Hinges per parallel task of the hinge pass (large enough that task overhead is negligible).
+const HINGE_CHUNK: usize = 4096;
+
 /// Vertices per partition on large meshes. An element straddling two partitions is computed by both, so
 /// partitions must be many rows of a mesh deep (8192 vertices are 20 rows of a 401² grid: ~5% repeated work).
 const PARTITION_VERTICES: usize = 8192;
 /// Small meshes still get this many partitions (of at least `MIN_PARTITION_VERTICES` each) so a few threads
 /// have work to share.
-const MIN_PARTITIONS: usize = 8;
+const MIN_PARTITIONS: usize = 4;
 const MIN_PARTITION_VERTICES: usize = 512;
 
 impl<P: HingePsi> BendingModel<P> {
@@ -657,12 +660,18 @@ impl<P: HingePsi> BendingModel<P> {
                 .min_by_key(|(h, _)| *h)
                 .map(|(_, e)| e),
             Parallelism::Rayon => states
-                .par_iter_mut()
-                .zip(&self.state_order)
-                .filter_map(|(s, &h)| {
-                    self.hinge_pass(h as usize, x, need_grad, s)
-                        .err()
-                        .map(|e| (h, e))
+                .par_chunks_mut(HINGE_CHUNK)
+                .zip(self.state_order.par_chunks(HINGE_CHUNK))
+                .filter_map(|(states, order)| {
+                    states
+                        .iter_mut()
+                        .zip(order)
+                        .filter_map(|(s, &h)| {
+                            self.hinge_pass(h as usize, x, need_grad, s)
+                                .err()
+                                .map(|e| (h, e))
+                        })
+                        .min_by_key(|(h, _)| *h)
                 })
                 .min_by_key(|(h, _)| *h)
                 .map(|(_, e)| e),

@@ -393,16 +393,25 @@ mod autodiff_oracle {
     /// Dense full Hessian and gradient of a one-energy system.
     fn closed_form(e: Box<dyn Energy>, x: &[Vector3<f64>]) -> (Vec<f64>, Vec<f64>) {
         let mut s = System::new(x.len(), vec![e]).unwrap();
-        let r = s.evaluate(x, Request::ALL, Parallelism::Sequential).unwrap();
+        let r = s
+            .evaluate(x, Request::ALL, Parallelism::Sequential)
+            .unwrap();
         let p = s.pattern();
-        (r.gradient.clone(), sym_dense(p.col_ptr(), p.row_idx(), &r.hessian))
+        (
+            r.gradient.clone(),
+            sym_dense(p.col_ptr(), p.row_idx(), &r.hessian),
+        )
     }
 
     fn flat<const N: usize>(x: &[Vector3<f64>]) -> SVector<f64, N> {
         SVector::from_iterator(x.iter().flat_map(|p| [p.x, p.y, p.z]))
     }
 
-    fn compare<const N: usize>(name: &str, (g, h): (Vec<f64>, Vec<f64>), ad: (f64, SVector<f64, N>, SMatrix<f64, N, N>)) {
+    fn compare<const N: usize>(
+        name: &str,
+        (g, h): (Vec<f64>, Vec<f64>),
+        ad: (f64, SVector<f64, N>, SMatrix<f64, N, N>),
+    ) {
         let hd: Vec<f64> = (0..N * N).map(|k| ad.2[(k / N, k % N)]).collect();
         let (eg, eh) = (rel_error(&g, ad.1.as_slice()), rel_error(&h, &hd));
         println!("{name}: gradient vs num-dual {eg:.2e}, hessian {eh:.2e}");
@@ -411,14 +420,25 @@ mod autodiff_oracle {
 
     #[test]
     fn spring_membrane_contact_quadratic_match_num_dual() {
-        let tri = vec![Vector3::new(0.0, 0.0, 0.0), Vector3::new(1.0, 0.1, 0.0), Vector3::new(0.2, 0.9, 0.0)];
+        let tri = vec![
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.1, 0.0),
+            Vector3::new(0.2, 0.9, 0.0),
+        ];
         let rest = TriMesh::new(tri.clone(), vec![[0, 1, 2]]).unwrap();
-        let def = vec![Vector3::new(0.05, -0.02, 0.1), Vector3::new(1.1, 0.2, -0.05), Vector3::new(0.1, 1.0, 0.2)];
+        let def = vec![
+            Vector3::new(0.05, -0.02, 0.1),
+            Vector3::new(1.1, 0.2, -0.05),
+            Vector3::new(0.1, 1.0, 0.2),
+        ];
         let x = flat::<9>(&def);
 
         // Springs: ½k(l − L)² per edge.
         let k = 7.0;
-        let lens: Vec<f64> = [[1, 2], [0, 2], [0, 1]].iter().map(|&[i, j]: &[usize; 2]| (tri[i] - tri[j]).norm()).collect();
+        let lens: Vec<f64> = [[1, 2], [0, 2], [0, 1]]
+            .iter()
+            .map(|&[i, j]: &[usize; 2]| (tri[i] - tri[j]).norm())
+            .collect();
         let ad = hessian(
             |v: SVector<Dual2SVec64<9>, 9>| {
                 let s = v.as_slice();
@@ -433,14 +453,19 @@ mod autodiff_oracle {
             },
             &x,
         );
-        compare("mass-spring", closed_form(Box::new(MassSpring::new(&rest, k).unwrap()), &def), ad);
+        compare(
+            "mass-spring",
+            closed_form(Box::new(MassSpring::new(&rest, k).unwrap()), &def),
+            ad,
+        );
 
         // StVK: h A (μ tr(E²) + λ/2 tr(E)²) with E from the metric of the deformed edges against the rest
         // metric, written without a rest frame: E = ½ (Dm⁻ᵀ Dsᵀ Ds Dm⁻¹ − I) via the rest Gram matrix.
         let (young, nu, h) = (900.0, 0.35, 0.02);
         let (mu, lambda) = (young / (2.0 * (1.0 + nu)), young * nu / (1.0 - nu * nu));
         let (r1, r2) = (tri[1] - tri[0], tri[2] - tri[0]);
-        let gram = hinge_core::nalgebra::Matrix2::new(r1.dot(&r1), r1.dot(&r2), r1.dot(&r2), r2.dot(&r2));
+        let gram =
+            hinge_core::nalgebra::Matrix2::new(r1.dot(&r1), r1.dot(&r2), r1.dot(&r2), r2.dot(&r2));
         let gi = gram.try_inverse().unwrap();
         let area = 0.5 * r1.cross(&r2).norm();
         let ad = hessian(
@@ -449,18 +474,29 @@ mod autodiff_oracle {
                 let (p0, p1, p2) = (v3(s, 0), v3(s, 1), v3(s, 2));
                 let d1 = [p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]];
                 let d2 = [p2[0] - p0[0], p2[1] - p0[1], p2[2] - p0[2]];
-                let dot = |a: [Dual2SVec64<9>; 3], b: [Dual2SVec64<9>; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+                let dot = |a: [Dual2SVec64<9>; 3], b: [Dual2SVec64<9>; 3]| {
+                    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+                };
                 // Deformed Gram matrix g; strain in the rest metric: M = G⁻¹ g − I, tr(E) = ½ tr(M),
                 // tr(E²) = ¼ tr(M²).
                 let g = [[dot(d1, d1), dot(d1, d2)], [dot(d1, d2), dot(d2, d2)]];
-                let m = |i: usize, j: usize| g[0][j] * gi[(i, 0)] + g[1][j] * gi[(i, 1)] - if i == j { 1.0 } else { 0.0 };
+                let m = |i: usize, j: usize| {
+                    g[0][j] * gi[(i, 0)] + g[1][j] * gi[(i, 1)] - if i == j { 1.0 } else { 0.0 }
+                };
                 let tr = (m(0, 0) + m(1, 1)) * 0.5;
                 let tr2 = (m(0, 0) * m(0, 0) + m(0, 1) * m(1, 0) * 2.0 + m(1, 1) * m(1, 1)) * 0.25;
                 (tr2 * mu + tr * tr * (0.5 * lambda)) * (h * area)
             },
             &x,
         );
-        compare("membrane", closed_form(Box::new(StvkMembrane::new(&rest, young, nu, h).unwrap()), &def), ad);
+        compare(
+            "membrane",
+            closed_form(
+                Box::new(StvkMembrane::new(&rest, young, nu, h).unwrap()),
+                &def,
+            ),
+            ad,
+        );
 
         // Sphere contact: ½κ(δ − (|x − c| − r))² where active.
         let (c, r, kappa, delta) = (Vector3::new(0.3, 0.3, -0.8), 1.0, 50.0, 0.1);
@@ -480,7 +516,16 @@ mod autodiff_oracle {
             },
             &x,
         );
-        let contact = Contact::new(3, Obstacle::Sphere { center: c, radius: r }, kappa, delta).unwrap();
+        let contact = Contact::new(
+            3,
+            Obstacle::Sphere {
+                center: c,
+                radius: r,
+            },
+            kappa,
+            delta,
+        )
+        .unwrap();
         compare("contact-sphere", closed_form(Box::new(contact), &def), ad);
     }
 
