@@ -1,0 +1,639 @@
+//! Linear solvers for symmetric sparse systems given as a lower-triangle CSC pattern plus values
+//! ([`hinge_core::pattern::SymmetricPattern`]'s layout): analyze once per pattern, factor per Newton
+//! iteration, solve per right-hand side.
+
+use faer::linalg::solvers::SolveCore;
+use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Side};
+
+/// A symmetric sparse matrix pattern in lower-triangle CSC form (rows sorted within each column).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LowerCsc {
+    /// Dimension.
+    pub n: usize,
+    /// Column pointers (`n + 1`).
+    pub col_ptr: Vec<usize>,
+    /// Row indices (≥ the column), sorted per column.
+    pub row_idx: Vec<usize>,
+}
+
+impl LowerCsc {
+    /// Position of each column's diagonal entry (every column must store its diagonal).
+    pub fn diagonal_positions(&self) -> Option<Vec<usize>> {
+        (0..self.n)
+            .map(|c| {
+                let k = self.col_ptr[c];
+                (k < self.col_ptr[c + 1] && self.row_idx[k] == c).then_some(k)
+            })
+            .collect()
+    }
+
+    /// `y = A x` for the symmetric matrix with lower-triangle `values`.
+    pub fn mul(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
+        y.fill(0.0);
+        for c in 0..self.n {
+            for k in self.col_ptr[c]..self.col_ptr[c + 1] {
+                let r = self.row_idx[k];
+                y[r] += values[k] * x[c];
+                if r != c {
+                    y[c] += values[k] * x[r];
+                }
+            }
+        }
+    }
+}
+
+/// Why a linear solve failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LinearError {
+    /// The matrix is not positive definite (a Cholesky pivot was not positive).
+    #[error("matrix is not positive definite (non-positive pivot at permuted index {index})")]
+    NotPositiveDefinite {
+        /// Pivot index in the factorization's (permuted) order.
+        index: usize,
+    },
+    /// The matrix is (numerically) singular.
+    #[error("matrix is singular or the solution is not finite")]
+    Singular,
+    /// An iterative method did not reach its tolerance.
+    #[error(
+        "{method} did not converge: relative residual {residual:e} after {iterations} iterations"
+    )]
+    NotConverged {
+        /// The method.
+        method: &'static str,
+        /// Iterations done.
+        iterations: usize,
+        /// Final relative residual.
+        residual: f64,
+    },
+    /// `factor` or `solve` before `analyze`, or sizes that do not match.
+    #[error("solver used out of order or with mismatched sizes: {0}")]
+    Usage(String),
+    /// An error inside faer.
+    #[error("faer: {0}")]
+    Faer(String),
+}
+
+/// Analyze / factor / solve for symmetric systems.
+pub trait LinearSolver: Send {
+    /// A short name for reports (`faer-llt`, `faer-lu`, `pcg-jacobi`, `chebyshev-jacobi`, `dense`).
+    fn name(&self) -> &'static str;
+
+    /// Symbolic analysis of a pattern (once per pattern).
+    ///
+    /// # Errors
+    /// [`LinearError`].
+    fn analyze(&mut self, pattern: &LowerCsc) -> Result<(), LinearError>;
+
+    /// Numeric factorization (or preconditioner set-up) for `values` in the analyzed pattern.
+    ///
+    /// # Errors
+    /// [`LinearError::NotPositiveDefinite`] for a Cholesky backend on an indefinite matrix, and so on.
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError>;
+
+    /// Solves in place: `rhs` becomes `A⁻¹ rhs`.
+    ///
+    /// # Errors
+    /// [`LinearError`].
+    fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError>;
+
+    /// How many symbolic analyses this solver has done (to check reuse).
+    fn analyses(&self) -> usize;
+}
+
+fn check_finite(x: &[f64]) -> Result<(), LinearError> {
+    if x.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(LinearError::Singular)
+    }
+}
+
+/// faer's sparse supernodal/simplicial LLᵀ with the symbolic analysis reused across factorizations (the
+/// default backend).
+#[derive(Debug, Default)]
+pub struct FaerLlt {
+    pattern: Option<LowerCsc>,
+    symbolic: Option<SymbolicLlt<usize>>,
+    numeric: Option<Llt<usize, f64>>,
+    analyses: usize,
+}
+
+impl LinearSolver for FaerLlt {
+    fn name(&self) -> &'static str {
+        "faer-llt"
+    }
+
+    fn analyze(&mut self, pattern: &LowerCsc) -> Result<(), LinearError> {
+        let sym = SymbolicSparseColMatRef::new_checked(
+            pattern.n,
+            pattern.n,
+            &pattern.col_ptr,
+            None,
+            &pattern.row_idx,
+        );
+        self.symbolic = Some(
+            SymbolicLlt::try_new(sym, Side::Lower)
+                .map_err(|e| LinearError::Faer(format!("{e:?}")))?,
+        );
+        self.pattern = Some(pattern.clone());
+        self.numeric = None;
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let (Some(p), Some(s)) = (&self.pattern, &self.symbolic) else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        if values.len() != p.row_idx.len() {
+            return Err(LinearError::Usage(format!(
+                "{} values for {} entries",
+                values.len(),
+                p.row_idx.len()
+            )));
+        }
+        let sym = SymbolicSparseColMatRef::new_checked(p.n, p.n, &p.col_ptr, None, &p.row_idx);
+        let mat = SparseColMatRef::new(sym, values);
+        self.numeric = None;
+        match Llt::try_new_with_symbolic(s.clone(), mat, Side::Lower) {
+            Ok(l) => {
+                self.numeric = Some(l);
+                Ok(())
+            }
+            Err(faer::sparse::linalg::LltError::Numeric(
+                faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
+            )) => Err(LinearError::NotPositiveDefinite { index }),
+            Err(e) => Err(LinearError::Faer(format!("{e:?}"))),
+        }
+    }
+
+    fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
+        let Some(l) = &self.numeric else {
+            return Err(LinearError::Usage(
+                "solve before a successful factor".into(),
+            ));
+        };
+        let n = rhs.len();
+        l.solve_in_place_with_conj(Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1));
+        check_finite(rhs)
+    }
+
+    fn analyses(&self) -> usize {
+        self.analyses
+    }
+}
+
+/// faer's sparse LU with partial pivoting on the full symmetric matrix: for indefinite systems (exact Newton on
+/// an indefinite Hessian). The full pattern is built once at analysis.
+#[derive(Debug, Default)]
+pub struct FaerLu {
+    n: usize,
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    /// For each full entry, the lower-triangle value it copies.
+    source: Vec<usize>,
+    values: Vec<f64>,
+    symbolic: Option<SymbolicLu<usize>>,
+    numeric: Option<Lu<usize, f64>>,
+    analyses: usize,
+}
+
+impl LinearSolver for FaerLu {
+    fn name(&self) -> &'static str {
+        "faer-lu"
+    }
+
+    fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        // Full CSC: column c holds (r, c) for r ≥ c from the lower part and (r, c) for r < c as (c, r).
+        let n = p.n;
+        let mut count = vec![0usize; n + 1];
+        for c in 0..n {
+            for &r in &p.row_idx[p.col_ptr[c]..p.col_ptr[c + 1]] {
+                count[c + 1] += 1;
+                if r != c {
+                    count[r + 1] += 1;
+                }
+            }
+        }
+        for i in 0..n {
+            count[i + 1] += count[i];
+        }
+        let mut next = count.clone();
+        let nnz = count[n];
+        let (mut row_idx, mut source) = (vec![0usize; nnz], vec![0usize; nnz]);
+        // Upper entries (r < c) of column c come from lower column r; visit columns in order so rows sort.
+        for c in 0..n {
+            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
+                let r = p.row_idx[k];
+                if r != c {
+                    // entry (c, r) of column r, row c < r: appended while visiting column c < r.
+                    let s = next[r];
+                    row_idx[s] = c;
+                    source[s] = k;
+                    next[r] += 1;
+                }
+            }
+            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
+                let s = next[c];
+                row_idx[s] = p.row_idx[k];
+                source[s] = k;
+                next[c] += 1;
+            }
+        }
+        let sym = SymbolicSparseColMatRef::new_checked(n, n, &count, None, &row_idx);
+        self.symbolic =
+            Some(SymbolicLu::try_new(sym).map_err(|e| LinearError::Faer(format!("{e:?}")))?);
+        self.n = n;
+        self.col_ptr = count;
+        self.row_idx = row_idx;
+        self.values = vec![0.0; nnz];
+        self.source = source;
+        self.numeric = None;
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let Some(s) = &self.symbolic else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        for (v, &k) in self.values.iter_mut().zip(&self.source) {
+            *v = *values
+                .get(k)
+                .ok_or_else(|| LinearError::Usage("value array too short".into()))?;
+        }
+        let sym = SymbolicSparseColMatRef::new_checked(
+            self.n,
+            self.n,
+            &self.col_ptr,
+            None,
+            &self.row_idx,
+        );
+        let mat = SparseColMatRef::new(sym, &self.values);
+        self.numeric =
+            Some(Lu::try_new_with_symbolic(s.clone(), mat).map_err(|_| LinearError::Singular)?);
+        Ok(())
+    }
+
+    fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
+        let Some(l) = &self.numeric else {
+            return Err(LinearError::Usage(
+                "solve before a successful factor".into(),
+            ));
+        };
+        let n = rhs.len();
+        l.solve_in_place_with_conj(Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1));
+        check_finite(rhs)
+    }
+
+    fn analyses(&self) -> usize {
+        self.analyses
+    }
+}
+
+/// Conjugate gradients with a Jacobi (diagonal) preconditioner. For symmetric positive definite systems.
+#[derive(Debug)]
+pub struct PcgJacobi {
+    /// Relative residual tolerance.
+    pub tolerance: f64,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    pattern: Option<LowerCsc>,
+    diag: Vec<usize>,
+    values: Vec<f64>,
+    inv_diag: Vec<f64>,
+    analyses: usize,
+    /// Iterations used by the last solve.
+    pub last_iterations: usize,
+}
+
+impl PcgJacobi {
+    /// A solver with relative tolerance `tolerance` and at most `max_iterations` iterations.
+    pub fn new(tolerance: f64, max_iterations: usize) -> Self {
+        Self {
+            tolerance,
+            max_iterations,
+            pattern: None,
+            diag: Vec::new(),
+            values: Vec::new(),
+            inv_diag: Vec::new(),
+            analyses: 0,
+            last_iterations: 0,
+        }
+    }
+}
+
+fn analyze_iterative(p: &LowerCsc) -> Result<Vec<usize>, LinearError> {
+    p.diagonal_positions()
+        .ok_or_else(|| LinearError::Usage("every column must store its diagonal".into()))
+}
+
+fn jacobi_setup(
+    p: &LowerCsc,
+    diag: &[usize],
+    values: &[f64],
+    out_values: &mut Vec<f64>,
+    inv: &mut Vec<f64>,
+) -> Result<(), LinearError> {
+    if values.len() != p.row_idx.len() {
+        return Err(LinearError::Usage(format!(
+            "{} values for {} entries",
+            values.len(),
+            p.row_idx.len()
+        )));
+    }
+    out_values.clear();
+    out_values.extend_from_slice(values);
+    inv.clear();
+    for (i, &k) in diag.iter().enumerate() {
+        let d = values[k];
+        if !(d > 0.0) || !d.is_finite() {
+            return Err(LinearError::NotPositiveDefinite { index: i });
+        }
+        inv.push(1.0 / d);
+    }
+    Ok(())
+}
+
+impl LinearSolver for PcgJacobi {
+    fn name(&self) -> &'static str {
+        "pcg-jacobi"
+    }
+
+    fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.diag = analyze_iterative(p)?;
+        self.pattern = Some(p.clone());
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)
+    }
+
+    fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("solve before analyze".into()));
+        };
+        let n = p.n;
+        let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let mut x = vec![0.0; n];
+        if bnorm == 0.0 {
+            b.fill(0.0);
+            return Ok(());
+        }
+        let mut r = b.to_vec();
+        let mut z: Vec<f64> = r.iter().zip(&self.inv_diag).map(|(a, d)| a * d).collect();
+        let mut d = z.clone();
+        let mut q = vec![0.0; n];
+        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+        let mut res = 1.0;
+        for it in 0..self.max_iterations {
+            p.mul(&self.values, &d, &mut q);
+            let dq: f64 = d.iter().zip(&q).map(|(a, b)| a * b).sum();
+            if !(dq > 0.0) {
+                return Err(LinearError::NotPositiveDefinite { index: it });
+            }
+            let alpha = rz / dq;
+            for i in 0..n {
+                x[i] += alpha * d[i];
+                r[i] -= alpha * q[i];
+            }
+            res = r.iter().map(|v| v * v).sum::<f64>().sqrt() / bnorm;
+            if res <= self.tolerance {
+                self.last_iterations = it + 1;
+                b.copy_from_slice(&x);
+                return check_finite(b);
+            }
+            for i in 0..n {
+                z[i] = r[i] * self.inv_diag[i];
+            }
+            let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
+            let beta = rz_new / rz;
+            rz = rz_new;
+            for i in 0..n {
+                d[i] = z[i] + beta * d[i];
+            }
+        }
+        self.last_iterations = self.max_iterations;
+        Err(LinearError::NotConverged {
+            method: "pcg-jacobi",
+            iterations: self.max_iterations,
+            residual: res,
+        })
+    }
+
+    fn analyses(&self) -> usize {
+        self.analyses
+    }
+}
+
+/// Jacobi iteration with Chebyshev acceleration (lecture P24–P26):
+/// `x_{k+1} = ω_{k+1} (x̃_{k+1} − x_{k−1}) + x_{k−1}`, `x̃_{k+1}` the Jacobi update of `x_k`,
+/// `ω_1 = 1`, `ω_2 = 2/(2 − ρ²)`, `ω_{k+1} = 4/(4 − ρ² ω_k)`, with ρ the spectral radius of the Jacobi
+/// iteration matrix `I − D⁻¹A`, estimated at factorization by power iteration. Converges when ρ < 1 (for
+/// example diagonally dominant systems such as `M/Δt² + H` at small steps).
+#[derive(Debug)]
+pub struct ChebyshevJacobi {
+    /// Relative residual tolerance.
+    pub tolerance: f64,
+    /// Iteration limit.
+    pub max_iterations: usize,
+    pattern: Option<LowerCsc>,
+    diag: Vec<usize>,
+    values: Vec<f64>,
+    inv_diag: Vec<f64>,
+    rho: f64,
+    analyses: usize,
+    /// Iterations used by the last solve.
+    pub last_iterations: usize,
+}
+
+impl ChebyshevJacobi {
+    /// A solver with relative tolerance `tolerance` and at most `max_iterations` iterations.
+    pub fn new(tolerance: f64, max_iterations: usize) -> Self {
+        Self {
+            tolerance,
+            max_iterations,
+            pattern: None,
+            diag: Vec::new(),
+            values: Vec::new(),
+            inv_diag: Vec::new(),
+            rho: 0.0,
+            analyses: 0,
+            last_iterations: 0,
+        }
+    }
+
+    /// The estimated spectral radius of the Jacobi iteration matrix.
+    pub fn rho(&self) -> f64 {
+        self.rho
+    }
+}
+
+impl LinearSolver for ChebyshevJacobi {
+    fn name(&self) -> &'static str {
+        "chebyshev-jacobi"
+    }
+
+    fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.diag = analyze_iterative(p)?;
+        self.pattern = Some(p.clone());
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)?;
+        // Power iteration on J = I − D⁻¹A from a fixed, non-symmetric start vector.
+        let n = p.n;
+        let mut v: Vec<f64> = (0..n)
+            .map(|i| 1.0 + ((i * 7919) % 13) as f64 / 13.0)
+            .collect();
+        let mut av = vec![0.0; n];
+        let mut lambda = 0.0;
+        for _ in 0..60 {
+            p.mul(&self.values, &v, &mut av);
+            let w: Vec<f64> = v
+                .iter()
+                .zip(&av)
+                .zip(&self.inv_diag)
+                .map(|((vi, ai), d)| vi - d * ai)
+                .collect();
+            let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let vnorm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+            if norm == 0.0 {
+                break;
+            }
+            lambda = norm / vnorm;
+            v = w.iter().map(|x| x / norm).collect();
+        }
+        // A little safety margin: Chebyshev needs an upper bound of ρ.
+        self.rho = (lambda * 1.02).min(0.999_999);
+        if lambda >= 1.0 {
+            return Err(LinearError::NotConverged {
+                method: "chebyshev-jacobi (Jacobi diverges: spectral radius ≥ 1)",
+                iterations: 0,
+                residual: lambda,
+            });
+        }
+        Ok(())
+    }
+
+    fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("solve before analyze".into()));
+        };
+        let n = p.n;
+        let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if bnorm == 0.0 {
+            return Ok(());
+        }
+        let (mut prev, mut x) = (vec![0.0; n], vec![0.0; n]);
+        let mut ax = vec![0.0; n];
+        let mut omega = 1.0;
+        let rho2 = self.rho * self.rho;
+        let mut res = 1.0;
+        for k in 0..self.max_iterations {
+            p.mul(&self.values, &x, &mut ax);
+            res = ax
+                .iter()
+                .zip(b.iter())
+                .map(|(a, bi)| (bi - a) * (bi - a))
+                .sum::<f64>()
+                .sqrt()
+                / bnorm;
+            if res <= self.tolerance {
+                self.last_iterations = k;
+                b.copy_from_slice(&x);
+                return check_finite(b);
+            }
+            omega = match k {
+                0 => 1.0,
+                1 => 2.0 / (2.0 - rho2),
+                _ => 4.0 / (4.0 - rho2 * omega),
+            };
+            for i in 0..n {
+                let jacobi = x[i] + self.inv_diag[i] * (b[i] - ax[i]);
+                let next = omega * (jacobi - prev[i]) + prev[i];
+                prev[i] = x[i];
+                x[i] = next;
+            }
+        }
+        self.last_iterations = self.max_iterations;
+        Err(LinearError::NotConverged {
+            method: "chebyshev-jacobi",
+            iterations: self.max_iterations,
+            residual: res,
+        })
+    }
+
+    fn analyses(&self) -> usize {
+        self.analyses
+    }
+}
+
+/// Dense nalgebra Cholesky (LU fallback is not attempted: an indefinite matrix is reported): for tiny
+/// systems and as a test oracle.
+#[derive(Debug, Default)]
+pub struct Dense {
+    pattern: Option<LowerCsc>,
+    chol: Option<nalgebra::Cholesky<f64, nalgebra::Dyn>>,
+    analyses: usize,
+}
+
+impl LinearSolver for Dense {
+    fn name(&self) -> &'static str {
+        "dense"
+    }
+
+    fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.pattern = Some(p.clone());
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        let mut a = nalgebra::DMatrix::zeros(p.n, p.n);
+        for c in 0..p.n {
+            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
+                let r = p.row_idx[k];
+                a[(r, c)] = values[k];
+                a[(c, r)] = values[k];
+            }
+        }
+        self.chol = Some(
+            a.cholesky()
+                .ok_or(LinearError::NotPositiveDefinite { index: 0 })?,
+        );
+        Ok(())
+    }
+
+    fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
+        let Some(c) = &self.chol else {
+            return Err(LinearError::Usage(
+                "solve before a successful factor".into(),
+            ));
+        };
+        let x = c.solve(&nalgebra::DVector::from_column_slice(rhs));
+        rhs.copy_from_slice(x.as_slice());
+        check_finite(rhs)
+    }
+
+    fn analyses(&self) -> usize {
+        self.analyses
+    }
+}

@@ -1,0 +1,556 @@
+//! Newton's method for statics (`E(x)`) and for the implicit-Euler incremental potential
+//! `F(x) = Σ_i m_i |x_i − x̂_i|² / (2Δt²) + E(x)` with `x̂ = x⁰ + Δt v⁰` (lecture P14–P18), with pinned
+//! vertices eliminated from the system, a backtracking Armijo line search on F, and inertia correction for
+//! the indefinite hinge Hessian: the diagonal shift is raised until the Cholesky factorization succeeds.
+//! A failed solve leaves the caller's state untouched and reports diagnostics.
+
+use std::time::Instant;
+
+use hinge_core::EvalError;
+use hinge_core::bending::{Parallelism, Request};
+use hinge_core::energy::{System, SystemEvaluation};
+use hinge_core::nalgebra::Vector3;
+use hinge_core::pattern::SymmetricPattern;
+use hinge_energies::pins::Pins;
+
+use crate::linear::{LinearError, LinearSolver, LowerCsc};
+
+/// Anything Newton can minimise: energy, gradient and a Hessian in a fixed pattern.
+pub trait Objective {
+    /// Number of vertices.
+    fn n_vertices(&self) -> usize;
+    /// The Hessian's pattern.
+    fn pattern(&self) -> &SymmetricPattern;
+    /// Evaluates at `x` into `out`.
+    ///
+    /// # Errors
+    /// The objective's typed errors.
+    fn evaluate(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        out: &mut SystemEvaluation,
+    ) -> Result<(), EvalError>;
+}
+
+impl Objective for System {
+    fn n_vertices(&self) -> usize {
+        System::n_vertices(self)
+    }
+    fn pattern(&self) -> &SymmetricPattern {
+        System::pattern(self)
+    }
+    fn evaluate(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        out: &mut SystemEvaluation,
+    ) -> Result<(), EvalError> {
+        self.evaluate_into(x, request, Parallelism::Rayon, out)
+    }
+}
+
+/// The inertia term of implicit Euler.
+#[derive(Debug, Clone)]
+pub struct Inertia {
+    /// Lumped vertex masses.
+    pub masses: Vec<f64>,
+    /// `x̂ = x⁰ + Δt v⁰`.
+    pub x_hat: Vec<Vector3<f64>>,
+    /// The time step.
+    pub dt: f64,
+}
+
+/// Newton parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewtonParams {
+    /// Iteration limit.
+    pub max_iterations: usize,
+    /// Stop when the free gradient norm ‖∇F‖ is at most this.
+    pub gradient_tolerance: f64,
+    /// Stop when the step norm ‖Δx‖ is at most this.
+    pub step_tolerance: f64,
+    /// Armijo constant.
+    pub armijo: f64,
+    /// Line-search halvings before giving up.
+    pub max_line_search: usize,
+    /// First diagonal shift tried when the factorization fails (relative to the largest diagonal entry).
+    pub initial_shift: f64,
+    /// Shift attempts before giving up.
+    pub max_shifts: usize,
+}
+
+impl Default for NewtonParams {
+    fn default() -> Self {
+        Self {
+            max_iterations: 50,
+            gradient_tolerance: 1e-8,
+            step_tolerance: 1e-12,
+            armijo: 1e-4,
+            max_line_search: 40,
+            initial_shift: 1e-8,
+            max_shifts: 40,
+        }
+    }
+}
+
+/// What a Newton solve did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NewtonStats {
+    /// Newton iterations.
+    pub iterations: usize,
+    /// Line-search halvings, summed.
+    pub line_search_steps: usize,
+    /// ‖∇F‖ over the free degrees of freedom after each iteration (the first entry is the start).
+    pub gradient_norms: Vec<f64>,
+    /// ‖Δx‖ of each accepted step (near the solution, the error of the iterate before it).
+    pub step_norms: Vec<f64>,
+    /// The largest diagonal shift used (0 when the Hessian was positive definite throughout).
+    pub max_shift: f64,
+    /// Seconds in evaluation and assembly.
+    pub eval_seconds: f64,
+    /// Seconds in factorization (including failed attempts).
+    pub factor_seconds: f64,
+    /// Seconds in triangular solves.
+    pub solve_seconds: f64,
+}
+
+/// Why a Newton solve failed. The caller's state is untouched.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SolverError {
+    /// The objective could not be evaluated.
+    #[error("evaluation failed: {source}")]
+    Eval {
+        /// The error.
+        source: EvalError,
+        /// What was done before.
+        stats: Box<NewtonStats>,
+    },
+    /// The linear system could not be solved, even with the largest shift.
+    #[error("linear solve failed after {} iterations (shift {:e}): {source}", stats.iterations, stats.max_shift)]
+    Linear {
+        /// The error.
+        source: LinearError,
+        /// What was done before.
+        stats: Box<NewtonStats>,
+    },
+    /// The line search found no decrease.
+    #[error("line search failed at iteration {} (gradient norm {:e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    LineSearch {
+        /// What was done.
+        stats: Box<NewtonStats>,
+    },
+    /// The iteration limit was reached.
+    #[error("no convergence in {} iterations (gradient norm {:e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    NotConverged {
+        /// What was done.
+        stats: Box<NewtonStats>,
+    },
+    /// Inputs that do not fit (sizes, non-finite time step).
+    #[error("{0}")]
+    Input(String),
+}
+
+/// The free-dof subsystem of a pattern: reduced lower CSC and where each reduced value comes from.
+#[derive(Debug, Clone)]
+pub struct Reduced {
+    /// The reduced pattern.
+    pub csc: LowerCsc,
+    /// For each reduced value, the full value index.
+    pub source: Vec<usize>,
+    /// Full scalar dof of each reduced dof.
+    pub dofs: Vec<usize>,
+    /// Reduced value index of each reduced diagonal.
+    pub diag: Vec<usize>,
+}
+
+impl Reduced {
+    /// Eliminates the dofs with `free[i] == false`.
+    pub fn new(pattern: &SymmetricPattern, free: &[bool]) -> Self {
+        let n = pattern.dim();
+        let mut map = vec![usize::MAX; n];
+        let mut dofs = Vec::new();
+        for i in 0..n {
+            if free.get(i).copied().unwrap_or(true) {
+                map[i] = dofs.len();
+                dofs.push(i);
+            }
+        }
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        let mut col_ptr = vec![0usize];
+        let (mut row_idx, mut source, mut diag) = (Vec::new(), Vec::new(), Vec::new());
+        for &c in &dofs {
+            for k in cp[c]..cp[c + 1] {
+                let r = ri[k];
+                if map[r] != usize::MAX {
+                    if r == c {
+                        diag.push(row_idx.len());
+                    }
+                    row_idx.push(map[r]);
+                    source.push(k);
+                }
+            }
+            col_ptr.push(row_idx.len());
+        }
+        Self {
+            csc: LowerCsc {
+                n: dofs.len(),
+                col_ptr,
+                row_idx,
+            },
+            source,
+            dofs,
+            diag,
+        }
+    }
+}
+
+/// A Newton minimiser bound to an objective's pattern and a set of pins (the symbolic analysis is done once
+/// here and reused by every iteration and every later solve).
+pub struct Newton {
+    /// Parameters.
+    pub params: NewtonParams,
+    solver: Box<dyn LinearSolver>,
+    reduced: Reduced,
+    values: Vec<f64>,
+    out: Option<SystemEvaluation>,
+}
+
+impl std::fmt::Debug for Newton {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Newton")
+            .field("params", &self.params)
+            .field("solver", &self.solver.name())
+            .finish()
+    }
+}
+
+impl Newton {
+    /// Binds to `objective`'s pattern with `pins` eliminated, analysing it with `solver`.
+    ///
+    /// # Errors
+    /// [`SolverError::Linear`] if the analysis fails.
+    pub fn new<O: Objective>(
+        objective: &O,
+        pins: &Pins,
+        mut solver: Box<dyn LinearSolver>,
+        params: NewtonParams,
+    ) -> Result<Self, SolverError> {
+        let mut free = pins.free_dofs();
+        free.resize(3 * objective.n_vertices(), true);
+        let reduced = Reduced::new(objective.pattern(), &free);
+        solver
+            .analyze(&reduced.csc)
+            .map_err(|source| SolverError::Linear {
+                source,
+                stats: Box::default(),
+            })?;
+        let values = vec![0.0; reduced.source.len()];
+        Ok(Self {
+            params,
+            solver,
+            reduced,
+            values,
+            out: None,
+        })
+    }
+
+    /// The linear solver (for its statistics, such as [`LinearSolver::analyses`]).
+    pub fn solver(&self) -> &dyn LinearSolver {
+        self.solver.as_ref()
+    }
+
+    /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
+    /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged.
+    ///
+    /// # Errors
+    /// [`SolverError`] with the statistics so far.
+    pub fn minimize<O: Objective>(
+        &mut self,
+        objective: &mut O,
+        x: &mut [Vector3<f64>],
+        inertia: Option<&Inertia>,
+    ) -> Result<NewtonStats, SolverError> {
+        let n = objective.n_vertices();
+        if x.len() != n
+            || inertia.is_some_and(|i| {
+                i.masses.len() != n || i.x_hat.len() != n || !(i.dt > 0.0 && i.dt.is_finite())
+            })
+        {
+            return Err(SolverError::Input(format!(
+                "{} positions for {n} vertices, or inertia of the wrong size / non-positive dt",
+                x.len()
+            )));
+        }
+        let p = self.params.clone();
+        let mut stats = NewtonStats::default();
+        let mut out = self.out.take().unwrap_or_else(|| SystemEvaluation {
+            energy: 0.0,
+            terms: Vec::new(),
+            gradient: Vec::new(),
+            hessian: Vec::new(),
+        });
+        let mut cur: Vec<Vector3<f64>> = x.to_vec();
+        let inertia_energy = |y: &[Vector3<f64>]| -> f64 {
+            inertia.map_or(0.0, |i| {
+                y.iter()
+                    .zip(&i.x_hat)
+                    .zip(&i.masses)
+                    .map(|((a, b), m)| m * (a - b).norm_squared())
+                    .sum::<f64>()
+                    / (2.0 * i.dt * i.dt)
+            })
+        };
+        let eval = |objective: &mut O,
+                    y: &[Vector3<f64>],
+                    req: Request,
+                    out: &mut SystemEvaluation,
+                    stats: &mut NewtonStats|
+         -> Result<f64, SolverError> {
+            let t = Instant::now();
+            let r = objective.evaluate(y, req, out);
+            stats.eval_seconds += t.elapsed().as_secs_f64();
+            r.map_err(|source| SolverError::Eval {
+                source,
+                stats: Box::new(stats.clone()),
+            })?;
+            Ok(out.energy + inertia_energy(y))
+        };
+        let dofs = self.reduced.dofs.clone();
+        let mut f = eval(objective, &cur, Request::ALL, &mut out, &mut stats)?;
+        let grad_free = |out: &SystemEvaluation, y: &[Vector3<f64>]| -> Vec<f64> {
+            dofs.iter()
+                .map(|&d| {
+                    let mut g = out.gradient[d];
+                    if let Some(i) = inertia {
+                        let v = d / 3;
+                        g += i.masses[v] * (y[v][d % 3] - i.x_hat[v][d % 3]) / (i.dt * i.dt);
+                    }
+                    g
+                })
+                .collect()
+        };
+        let mut g = grad_free(&out, &cur);
+        let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
+        stats.gradient_norms.push(norm(&g));
+        let mut shift = 0.0_f64;
+        for it in 0..p.max_iterations {
+            if norm(&g) <= p.gradient_tolerance {
+                x.copy_from_slice(&cur);
+                self.out = Some(out);
+                return Ok(stats);
+            }
+            // Reduced Hessian (+ inertia) and the shift loop.
+            for (v, &k) in self.values.iter_mut().zip(&self.reduced.source) {
+                *v = out.hessian[k];
+            }
+            if let Some(i) = inertia {
+                for (r, &dk) in self.reduced.diag.iter().enumerate() {
+                    self.values[dk] += i.masses[self.reduced.dofs[r] / 3] / (i.dt * i.dt);
+                }
+            }
+            let max_diag = self
+                .reduced
+                .diag
+                .iter()
+                .map(|&k| self.values[k].abs())
+                .fold(0.0, f64::max)
+                .max(f64::MIN_POSITIVE);
+            // Inertia correction: try the exact Hessian first; if it is not positive definite, shift the diagonal,
+            // starting near the last shift that worked, and raise it until the factorization succeeds. Trying 0
+            // first keeps the final iterations exact Newton steps (quadratic convergence).
+            let last_shift = shift;
+            shift = 0.0;
+            let mut attempts = 0;
+            loop {
+                let mut vals = self.values.clone();
+                if shift > 0.0 {
+                    for &k in &self.reduced.diag {
+                        vals[k] += shift;
+                    }
+                }
+                let t = Instant::now();
+                let r = self.solver.factor(&vals);
+                stats.factor_seconds += t.elapsed().as_secs_f64();
+                match r {
+                    Ok(()) => break,
+                    Err(LinearError::NotPositiveDefinite { .. }) if attempts < p.max_shifts => {
+                        attempts += 1;
+                        shift = if shift == 0.0 {
+                            (p.initial_shift * max_diag).max(0.25 * last_shift)
+                        } else {
+                            shift * 4.0
+                        };
+                        stats.max_shift = stats.max_shift.max(shift);
+                    }
+                    Err(source) => {
+                        return Err(SolverError::Linear {
+                            source,
+                            stats: Box::new(stats),
+                        });
+                    }
+                }
+            }
+            let mut d: Vec<f64> = g.iter().map(|v| -v).collect();
+            let t = Instant::now();
+            let r = self.solver.solve(&mut d);
+            stats.solve_seconds += t.elapsed().as_secs_f64();
+            r.map_err(|source| SolverError::Linear {
+                source,
+                stats: Box::new(stats.clone()),
+            })?;
+            let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
+            if !(slope < 0.0) {
+                // Not a descent direction (possible with an indefinite backend): fall back to −g.
+                d = g.iter().map(|v| -v).collect();
+            }
+            let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
+            // Backtracking line search on F.
+            let mut alpha = 1.0;
+            let mut accepted = None;
+            let mut trial = cur.clone();
+            for _ in 0..=p.max_line_search {
+                for (k, &dof) in dofs.iter().enumerate() {
+                    trial[dof / 3][dof % 3] = cur[dof / 3][dof % 3] + alpha * d[k];
+                }
+                // Near convergence the predicted decrease drops below the rounding of F: then accept any trial
+                // that does not increase F beyond that rounding, instead of halving against noise.
+                let noise = 8.0 * f64::EPSILON * f.abs().max(f64::MIN_POSITIVE);
+                let target = if (p.armijo * alpha * slope).abs() <= noise {
+                    f + noise
+                } else {
+                    f + p.armijo * alpha * slope
+                };
+                if let Ok(ft) = eval(objective, &trial, Request::VALUE, &mut out, &mut stats)
+                    && ft.is_finite()
+                    && ft <= target
+                {
+                    accepted = Some(ft);
+                    break;
+                }
+                alpha *= 0.5;
+                stats.line_search_steps += 1;
+            }
+            stats.iterations = it + 1;
+            let Some(_) = accepted else {
+                return Err(SolverError::LineSearch {
+                    stats: Box::new(stats),
+                });
+            };
+            cur.copy_from_slice(&trial);
+            f = eval(objective, &cur, Request::ALL, &mut out, &mut stats)?;
+            g = grad_free(&out, &cur);
+            stats.gradient_norms.push(norm(&g));
+            let step = alpha * norm(&d);
+            stats.step_norms.push(step);
+            if norm(&g) <= p.gradient_tolerance || step <= p.step_tolerance {
+                x.copy_from_slice(&cur);
+                self.out = Some(out);
+                return Ok(stats);
+            }
+        }
+        Err(SolverError::NotConverged {
+            stats: Box::new(stats),
+        })
+    }
+}
+
+/// Implicit Euler time stepping on a [`System`] with lumped masses and pins.
+pub struct ImplicitEuler {
+    /// The time step.
+    pub dt: f64,
+    /// Lumped masses.
+    pub masses: Vec<f64>,
+    newton: Newton,
+    pins: Pins,
+}
+
+impl std::fmt::Debug for ImplicitEuler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ImplicitEuler")
+            .field("dt", &self.dt)
+            .field("newton", &self.newton)
+            .finish()
+    }
+}
+
+impl ImplicitEuler {
+    /// A stepper for `system` with step `dt`, masses `masses`, pinned vertices `pins`.
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] for a non-positive `dt` or masses of the wrong length; analysis errors.
+    pub fn new(
+        system: &System,
+        dt: f64,
+        masses: Vec<f64>,
+        pins: Pins,
+        solver: Box<dyn LinearSolver>,
+        params: NewtonParams,
+    ) -> Result<Self, SolverError> {
+        if !(dt > 0.0 && dt.is_finite()) || masses.len() != system.n_vertices() {
+            return Err(SolverError::Input(format!(
+                "dt = {dt} must be positive; {} masses for {} vertices",
+                masses.len(),
+                system.n_vertices()
+            )));
+        }
+        let newton = Newton::new(system, &pins, solver, params)?;
+        Ok(Self {
+            dt,
+            masses,
+            newton,
+            pins,
+        })
+    }
+
+    /// The Newton solver (for statistics).
+    pub fn newton(&self) -> &Newton {
+        &self.newton
+    }
+
+    /// One step: minimises the incremental potential from `x̂ = x + Δt v` (pinned vertices stay put and keep
+    /// zero velocity), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are unchanged.
+    ///
+    /// # Errors
+    /// [`SolverError`] with diagnostics.
+    pub fn step(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+    ) -> Result<NewtonStats, SolverError> {
+        let n = system.n_vertices();
+        if x.len() != n || v.len() != n {
+            return Err(SolverError::Input(format!(
+                "{} positions and {} velocities for {n} vertices",
+                x.len(),
+                v.len()
+            )));
+        }
+        let dt = self.dt;
+        let mut x_hat: Vec<Vector3<f64>> =
+            x.iter().zip(v.iter()).map(|(p, w)| p + w * dt).collect();
+        for &pv in self.pins.vertices() {
+            x_hat[pv] = x[pv];
+        }
+        system
+            .begin_step(x, dt)
+            .map_err(|source| SolverError::Eval {
+                source,
+                stats: Box::default(),
+            })?;
+        let inertia = Inertia {
+            masses: self.masses.clone(),
+            x_hat: x_hat.clone(),
+            dt,
+        };
+        let mut next = x_hat;
+        let stats = self.newton.minimize(system, &mut next, Some(&inertia))?;
+        for i in 0..n {
+            v[i] = (next[i] - x[i]) / dt;
+            x[i] = next[i];
+        }
+        Ok(stats)
+    }
+}

@@ -1,0 +1,284 @@
+//! The solver layer: linear backends, Newton (quadratic convergence, one step on a quadratic, inertia
+//! correction), implicit Euler (energy never increases without damping) and failure handling.
+
+use hinge_core::TriMesh;
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::grid::{Diagonal, grid};
+use hinge_core::nalgebra::Vector3;
+use hinge_energies::bending::DiscreteShells;
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::pins::Pins;
+use hinge_energies::quadratic::QuadraticBending;
+use hinge_energies::spring::MassSpring;
+use hinge_solver::linear::{
+    ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearError, LinearSolver, PcgJacobi,
+};
+use hinge_solver::newton::{ImplicitEuler, Inertia, Newton, NewtonParams, Reduced, SolverError};
+use hinge_tests::*;
+
+fn cloth(n: usize) -> TriMesh {
+    grid(n, n, 1.0, 1.0, Diagonal::Alternating).unwrap()
+}
+
+fn spring_system(rest: &TriMesh, with_bending: bool) -> System {
+    let mut terms: Vec<Box<dyn Energy>> = vec![Box::new(MassSpring::new(rest, 200.0).unwrap())];
+    if with_bending {
+        let m = BendingModel::new(rest, DiscreteShells { k: 0.01 }).unwrap();
+        terms.push(Box::new(HingeTerm::new("bending", m, Method::Refactored)));
+    }
+    System::new(rest.n_vertices(), terms).unwrap()
+}
+
+/// M/Δt² + H of a stretched spring network: symmetric positive definite.
+fn spd_system() -> (Reduced, Vec<f64>) {
+    let rest = cloth(8);
+    let mut sys = spring_system(&rest, false);
+    let x: Vec<_> = rest.positions().iter().map(|p| p * 1.1).collect();
+    let e = sys
+        .evaluate(&x, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    let free = vec![true; 3 * rest.n_vertices()];
+    let red = Reduced::new(sys.pattern(), &free);
+    let mut vals: Vec<f64> = red.source.iter().map(|&k| e.hessian[k]).collect();
+    for &d in &red.diag {
+        vals[d] += 0.01 / (0.01 * 0.01) / 50.0;
+    }
+    (red, vals)
+}
+
+#[test]
+fn backends_agree_on_spd_systems() {
+    let (red, vals) = spd_system();
+    let n = red.csc.n;
+    let mut rng = SplitMix64(5);
+    let b: Vec<f64> = (0..n).map(|_| rng.symmetric()).collect();
+    let mut reference = b.clone();
+    let mut dense = Dense::default();
+    dense.analyze(&red.csc).unwrap();
+    dense.factor(&vals).unwrap();
+    dense.solve(&mut reference).unwrap();
+    let mut backends: Vec<Box<dyn LinearSolver>> = vec![
+        Box::new(FaerLlt::default()),
+        Box::new(FaerLu::default()),
+        Box::new(PcgJacobi::new(1e-12, 10_000)),
+        Box::new(ChebyshevJacobi::new(1e-12, 100_000)),
+    ];
+    for s in &mut backends {
+        s.analyze(&red.csc).unwrap();
+        s.factor(&vals).unwrap();
+        let mut x = b.clone();
+        s.solve(&mut x).unwrap();
+        let err = rel_error(&x, &reference);
+        println!("{}: relative difference to dense {err:.2e}", s.name());
+        assert!(err < 1e-9, "{}: {err}", s.name());
+        // Residual check independent of the oracle.
+        let mut ax = vec![0.0; n];
+        red.csc.mul(&vals, &x, &mut ax);
+        assert!(rel_error(&ax, &b) < 1e-10);
+    }
+}
+
+#[test]
+fn cholesky_detects_indefinite_matrices_and_lu_solves_them() {
+    let (red, mut vals) = spd_system();
+    // Make one diagonal entry negative: indefinite.
+    vals[red.diag[5]] = -1e6;
+    let mut llt = FaerLlt::default();
+    llt.analyze(&red.csc).unwrap();
+    assert!(matches!(
+        llt.factor(&vals),
+        Err(LinearError::NotPositiveDefinite { .. })
+    ));
+    let mut dense = Dense::default();
+    dense.analyze(&red.csc).unwrap();
+    assert!(dense.factor(&vals).is_err());
+    let mut lu = FaerLu::default();
+    lu.analyze(&red.csc).unwrap();
+    lu.factor(&vals).unwrap();
+    let b = vec![1.0; red.csc.n];
+    let mut x = b.clone();
+    lu.solve(&mut x).unwrap();
+    let mut ax = vec![0.0; red.csc.n];
+    red.csc.mul(&vals, &x, &mut ax);
+    assert!(rel_error(&ax, &b) < 1e-10);
+}
+
+#[test]
+fn newton_solves_a_quadratic_in_one_step() {
+    let rest = cloth(6);
+    let mut sys = System::new(
+        rest.n_vertices(),
+        vec![Box::new(QuadraticBending::new(&rest, 1.0).unwrap())],
+    )
+    .unwrap();
+    let masses = lumped_masses(&rest, 1.0);
+    let mut rng = SplitMix64(2);
+    let x_hat: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 0.1 * rng.symmetric()))
+        .collect();
+    let inertia = Inertia {
+        masses,
+        x_hat,
+        dt: 0.01,
+    };
+    let mut newton = Newton::new(
+        &sys,
+        &Pins::default(),
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut x = rest.positions().to_vec();
+    let stats = newton.minimize(&mut sys, &mut x, Some(&inertia)).unwrap();
+    println!("quadratic: {:?}", stats.gradient_norms);
+    assert_eq!(stats.iterations, 1);
+    assert!(stats.gradient_norms[1] < 1e-9 * stats.gradient_norms[0]);
+}
+
+#[test]
+fn statics_of_a_pinned_cloth_converges_quadratically() {
+    let rest = cloth(8);
+    let n = rest.n_vertices();
+    let mut terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(MassSpring::new(&rest, 500.0).unwrap()),
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 0.05 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(Gravity::new(lumped_masses(&rest, 1.0), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    let mut sys = System::new(n, std::mem::take(&mut terms)).unwrap();
+    // Pin the edge y = 0: the cloth hangs from it (a cantilever plate).
+    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].y == 0.0).collect();
+    let pins = Pins::new(n, pinned).unwrap();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-10,
+        max_iterations: 100,
+        ..NewtonParams::default()
+    };
+    let mut newton = Newton::new(&sys, &pins, Box::new(FaerLlt::default()), params).unwrap();
+    let mut x = rest.positions().to_vec();
+    let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+    let g = &stats.gradient_norms;
+    println!(
+        "statics: {} iterations, {} halvings, max shift {:e}\n{g:?}",
+        stats.iterations, stats.line_search_steps, stats.max_shift
+    );
+    // Observed order from the Newton steps (‖Δx_k‖ ≈ ‖x_k − x*‖ near the solution): the last three steps
+    // above the rounding floor, p = ln(s₃/s₂) / ln(s₂/s₁).
+    let s = &stats.step_norms;
+    println!("steps: {s:?}");
+    let tail: Vec<f64> = s.iter().copied().filter(|&v| v > 1e-12).collect();
+    let k = tail.len();
+    assert!(k >= 3, "too few steps to measure the order: {s:?}");
+    let order = (tail[k - 1] / tail[k - 2]).ln() / (tail[k - 2] / tail[k - 3]).ln();
+    println!("observed order {order:.2}");
+    assert!(order > 1.7, "observed convergence order {order}");
+    // The pinned edge did not move; the free edge sagged.
+    assert!(pins.vertices().iter().all(|&v| x[v] == rest.positions()[v]));
+    assert!(x.iter().map(|p| p.z).fold(f64::INFINITY, f64::min) < -0.01);
+    assert_eq!(newton.solver().analyses(), 1);
+}
+
+#[test]
+fn implicit_euler_never_increases_the_energy_of_an_undamped_system() {
+    let rest = cloth(6);
+    let n = rest.n_vertices();
+    let mut sys = spring_system(&rest, true);
+    let masses = lumped_masses(&rest, 1.0);
+    let pins = Pins::new(n, vec![0]).unwrap();
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        0.01,
+        masses.clone(),
+        pins,
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut rng = SplitMix64(8);
+    let mut x: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            p + Vector3::new(
+                0.02 * rng.symmetric(),
+                0.02 * rng.symmetric(),
+                0.05 * rng.symmetric(),
+            )
+        })
+        .collect();
+    x[0] = rest.positions()[0];
+    let mut v = vec![Vector3::zeros(); n];
+    let total = |sys: &mut System, x: &[Vector3<f64>], v: &[Vector3<f64>]| {
+        let e = sys
+            .evaluate(x, Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy;
+        e + v
+            .iter()
+            .zip(&masses)
+            .map(|(w, m)| 0.5 * m * w.norm_squared())
+            .sum::<f64>()
+    };
+    let mut last = total(&mut sys, &x, &v);
+    for step in 0..30 {
+        let stats = stepper.step(&mut sys, &mut x, &mut v).unwrap();
+        let h = total(&mut sys, &x, &v);
+        assert!(
+            h <= last * (1.0 + 1e-12) + 1e-15,
+            "step {step}: {h} > {last} ({stats:?})"
+        );
+        last = h;
+    }
+    assert_eq!(
+        stepper.newton().solver().analyses(),
+        1,
+        "the symbolic analysis is reused across steps"
+    );
+}
+
+#[test]
+fn a_step_that_cannot_converge_leaves_the_state_untouched() {
+    let rest = cloth(6);
+    let n = rest.n_vertices();
+    let mut sys = spring_system(&rest, true);
+    let params = NewtonParams {
+        max_iterations: 1,
+        gradient_tolerance: 0.0,
+        step_tolerance: 0.0,
+        ..NewtonParams::default()
+    };
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        1.0,
+        lumped_masses(&rest, 1.0),
+        Pins::default(),
+        Box::new(FaerLlt::default()),
+        params,
+    )
+    .unwrap();
+    let mut x: Vec<_> = rest.positions().iter().map(|p| p * 1.3).collect();
+    let mut v = vec![Vector3::new(0.0, 0.0, 1.0); n];
+    let (x0, v0) = (x.clone(), v.clone());
+    let err = stepper.step(&mut sys, &mut x, &mut v).unwrap_err();
+    assert!(matches!(err, SolverError::NotConverged { .. }), "{err}");
+    assert!(err.to_string().contains("no convergence"));
+    assert_eq!((x, v), (x0, v0));
+    // Bad input is an error too, never a panic.
+    assert!(
+        ImplicitEuler::new(
+            &sys,
+            -1.0,
+            vec![1.0; n],
+            Pins::default(),
+            Box::new(FaerLlt::default()),
+            NewtonParams::default()
+        )
+        .is_err()
+    );
+}
