@@ -73,6 +73,20 @@ impl Method {
     }
 }
 
+/// Which Hessian the hinge terms contribute (the energy and gradient are always exact).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HessianMode {
+    /// The exact Hessian `ψ′ Hess θ + ψ″ ∇θ∇θᵀ` (indefinite in general).
+    #[default]
+    Exact,
+    /// Gauss–Newton: `max(ψ″, 0) ∇θ∇θᵀ` only — positive semi-definite, cheap, not exact.
+    GaussNewton,
+    /// The exact per-hinge 12×12 Hessian with its negative eigenvalues clamped to zero (positive
+    /// semi-definite per stencil). Evaluated on the per-hinge path whatever the method (an eigen-decomposition
+    /// per hinge); with `Method::Autodiff` the autodiff local Hessian is projected.
+    ProjectPerHinge,
+}
+
 /// What an evaluation computes; nothing else is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Request {
@@ -171,6 +185,7 @@ pub struct BendingModel<P: HingePsi> {
     /// Hinge index of each edge (NONE on the boundary).
     edge_hinge: Vec<u32>,
     partitions: Vec<Partition>,
+    hessian_mode: HessianMode,
 }
 
 #[derive(Debug, Clone)]
@@ -285,6 +300,7 @@ impl<P: HingePsi> BendingModel<P> {
             hinge_slots: Vec::new(),
             edge_hinge,
             partitions: Vec::new(),
+            hessian_mode: HessianMode::Exact,
         };
         let own = std::sync::Arc::new(SymmetricPattern::new(n, model.couplings()));
         model.bind(own)?;
@@ -458,6 +474,16 @@ impl<P: HingePsi> BendingModel<P> {
             }
         }
         parts
+    }
+
+    /// Chooses the Hessian the model assembles (see [`HessianMode`]).
+    pub fn set_hessian_mode(&mut self, mode: HessianMode) {
+        self.hessian_mode = mode;
+    }
+
+    /// The Hessian mode.
+    pub fn hessian_mode(&self) -> HessianMode {
+        self.hessian_mode
     }
 
     /// The ψ this model evaluates.
@@ -791,6 +817,16 @@ impl<P: HingePsi> BendingModel<P> {
     }
 }
 
+/// The nearest positive semi-definite matrix (eigenvalues clamped at zero) of a symmetric 12×12 matrix.
+fn project_psd(h: SMatrix<f64, 12, 12>) -> SMatrix<f64, 12, 12> {
+    let eig = h.symmetric_eigen();
+    let clamped = eig.eigenvalues.map(|l| l.max(0.0));
+    let q = eig.eigenvectors;
+    let p = q * SMatrix::<f64, 12, 12>::from_diagonal(&clamped) * q.transpose();
+    // Exactly symmetric.
+    (p + p.transpose()) * 0.5
+}
+
 /// Per-hinge scratch space reused across evaluations.
 #[derive(Debug, Clone)]
 pub struct Scratch {
@@ -925,13 +961,15 @@ impl<P: HingePsi> Ctx<'_, P> {
             local_only: self.local_only,
             checksum: 0.0,
         };
-        match self.method {
-            Method::Refactored => {
+        let per_hinge_path = self.method != Method::Refactored
+            || (self.request.hessian && self.model.hessian_mode == HessianMode::ProjectPerHinge);
+        match per_hinge_path {
+            false => {
                 for &e in &p.tris {
                     self.triangle(e as usize, &mut own);
                 }
             }
-            Method::PerHinge | Method::Autodiff => {
+            true => {
                 for &h in &p.hinges {
                     self.hinge(h as usize, &mut own);
                 }
@@ -968,8 +1006,9 @@ impl<P: HingePsi> Ctx<'_, P> {
         let Ok(f) = TriangleFrame::new(&self.x[v[0]], &self.x[v[1]], &self.x[v[2]]) else {
             return;
         };
+        let gauss_newton = m.hessian_mode == HessianMode::GaussNewton;
         let c = hid.map(|h| {
-            if h == NONE {
+            if h == NONE || gauss_newton {
                 0.0
             } else {
                 self.states[h as usize].dpsi
@@ -1009,7 +1048,12 @@ impl<P: HingePsi> Ctx<'_, P> {
                     continue;
                 }
                 let s = &self.states[hid[k] as usize];
-                let g = s.grad.map(|gv| gv * s.d2psi);
+                let d2 = if gauss_newton {
+                    s.d2psi.max(0.0)
+                } else {
+                    s.d2psi
+                };
+                let g = s.grad.map(|gv| gv * d2);
                 let gr = &s.grad;
                 // Hinge x0, x1, x2 are corners k, k+1, k+2; own block 3 + i is (corner i, corner i + 1), so
                 // (x0, x1) → 3 + k, (x1, x2) → 3 + k1, (x2, x0) → 3 + k2.
@@ -1078,6 +1122,11 @@ impl<P: HingePsi> Ctx<'_, P> {
                     }
                 }
                 if self.request.hessian {
+                    let hm = if m.hessian_mode == HessianMode::ProjectPerHinge {
+                        project_psd(hm)
+                    } else {
+                        hm
+                    };
                     for (q, &(a, b)) in PAIRS.iter().enumerate() {
                         let blk: Matrix3<f64> = hm.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
                         own.add_block(&slots[q], hv[a], hv[b], &blk);
@@ -1096,18 +1145,49 @@ impl<P: HingePsi> Ctx<'_, P> {
                 let Ok(f) = HingeFrames::new(&st) else {
                     return;
                 };
-                let hb = hessian_blocks(&f);
                 let g = f.gradient();
-                for (q, &(a, b)) in PAIRS.iter().enumerate() {
+                let mode = m.hessian_mode;
+                let (dpsi, d2psi) = match mode {
+                    HessianMode::GaussNewton => (0.0, s.d2psi.max(0.0)),
+                    _ => (s.dpsi, s.d2psi),
+                };
+                let hb = if dpsi != 0.0 {
+                    hessian_blocks(&f)
+                } else {
+                    [[Matrix3::zeros(); 4]; 4]
+                };
+                let block = |a: usize, b: usize| {
                     let mut blk = if a == b {
-                        (hb[a][a] + hb[a][a].transpose()) * (0.5 * s.dpsi)
+                        (hb[a][a] + hb[a][a].transpose()) * (0.5 * dpsi)
                     } else {
-                        hb[a][b] * s.dpsi
+                        hb[a][b] * dpsi
                     };
                     if !P::D2_IS_ZERO {
-                        blk += (g[a] * s.d2psi) * g[b].transpose();
+                        blk += (g[a] * d2psi) * g[b].transpose();
                     }
-                    own.add_block(&slots[q], hv[a], hv[b], &blk);
+                    blk
+                };
+                if mode == HessianMode::ProjectPerHinge {
+                    let mut local = SMatrix::<f64, 12, 12>::zeros();
+                    for a in 0..4 {
+                        for b in 0..=a {
+                            let blk = block(a, b);
+                            local.fixed_view_mut::<3, 3>(3 * a, 3 * b).copy_from(&blk);
+                            local
+                                .fixed_view_mut::<3, 3>(3 * b, 3 * a)
+                                .copy_from(&blk.transpose());
+                        }
+                    }
+                    let projected = project_psd(local);
+                    for (q, &(a, b)) in PAIRS.iter().enumerate() {
+                        let blk: Matrix3<f64> =
+                            projected.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
+                        own.add_block(&slots[q], hv[a], hv[b], &blk);
+                    }
+                } else {
+                    for (q, &(a, b)) in PAIRS.iter().enumerate() {
+                        own.add_block(&slots[q], hv[a], hv[b], &block(a, b));
+                    }
                 }
             }
         }

@@ -78,6 +78,9 @@ pub struct NewtonParams {
     pub initial_shift: f64,
     /// Shift attempts before giving up.
     pub max_shifts: usize,
+    /// Baraff–Witkin mode: take exactly one (line-searched) Newton step per solve and accept it, converged
+    /// or not — the classic single-iteration implicit Euler.
+    pub single_iteration: bool,
 }
 
 impl Default for NewtonParams {
@@ -90,6 +93,7 @@ impl Default for NewtonParams {
             max_line_search: 40,
             initial_shift: 1e-8,
             max_shifts: 40,
+            single_iteration: false,
         }
     }
 }
@@ -444,7 +448,7 @@ impl Newton {
             stats.gradient_norms.push(norm(&g));
             let step = alpha * norm(&d);
             stats.step_norms.push(step);
-            if norm(&g) <= p.gradient_tolerance || step <= p.step_tolerance {
+            if p.single_iteration || norm(&g) <= p.gradient_tolerance || step <= p.step_tolerance {
                 x.copy_from_slice(&cur);
                 self.out = Some(out);
                 return Ok(stats);

@@ -282,3 +282,90 @@ fn a_step_that_cannot_converge_leaves_the_state_untouched() {
         .is_err()
     );
 }
+
+fn min_eigenvalue(sys: &System, hessian: &[f64]) -> (f64, f64) {
+    let p = sys.pattern();
+    let n = p.dim();
+    let dense = sym_dense(p.col_ptr(), p.row_idx(), hessian);
+    let m = hinge_core::nalgebra::DMatrix::from_row_slice(n, n, &dense);
+    let eig = m.symmetric_eigen();
+    let min = eig
+        .eigenvalues
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let max = eig.eigenvalues.iter().map(|v| v.abs()).fold(0.0, f64::max);
+    (min, max)
+}
+
+#[test]
+fn hessian_modes_gauss_newton_and_projection_are_psd() {
+    use hinge_core::bending::HessianMode;
+    use hinge_energies::bending::TanBending;
+    let rest = cloth(4);
+    let n = rest.n_vertices();
+    let mut rng = SplitMix64(4);
+    let x: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 0.3 * rng.symmetric()))
+        .collect();
+    let build = |mode: HessianMode, method: Method| {
+        let mut m = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
+        m.set_hessian_mode(mode);
+        System::new(
+            n,
+            vec![Box::new(HingeTerm::new("tan", m, method)) as Box<dyn Energy>],
+        )
+        .unwrap()
+    };
+    let eval = |sys: &mut System| {
+        sys.evaluate(&x, Request::ALL, Parallelism::Sequential)
+            .unwrap()
+    };
+    let mut exact = build(HessianMode::Exact, Method::Refactored);
+    let e = eval(&mut exact);
+    let (lo, hi) = min_eigenvalue(&exact, &e.hessian);
+    println!("exact: min eigenvalue {lo:.3e} (max |λ| {hi:.3e})");
+    assert!(
+        lo < -1e-6 * hi,
+        "this bent state has an indefinite exact Hessian"
+    );
+    for mode in [HessianMode::GaussNewton, HessianMode::ProjectPerHinge] {
+        let mut a = build(mode, Method::Refactored);
+        let mut b = build(mode, Method::PerHinge);
+        let (ea, eb) = (eval(&mut a), eval(&mut b));
+        // Same energy and gradient as the exact mode; a PSD Hessian; both methods agree.
+        assert_eq!(ea.energy, e.energy);
+        assert!(rel_error(&ea.gradient, &e.gradient) < 1e-14);
+        assert!(rel_error(&ea.hessian, &eb.hessian) < 1e-13, "{mode:?}");
+        let (lo, hi) = min_eigenvalue(&a, &ea.hessian);
+        println!("{mode:?}: min eigenvalue {lo:.3e} (max |λ| {hi:.3e})");
+        assert!(lo > -1e-12 * hi, "{mode:?} must be positive semi-definite");
+    }
+}
+
+#[test]
+fn baraff_witkin_mode_takes_one_iteration() {
+    let rest = cloth(6);
+    let n = rest.n_vertices();
+    let mut sys = spring_system(&rest, true);
+    let params = NewtonParams {
+        single_iteration: true,
+        ..NewtonParams::default()
+    };
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        0.01,
+        lumped_masses(&rest, 1.0),
+        Pins::default(),
+        Box::new(FaerLlt::default()),
+        params,
+    )
+    .unwrap();
+    let mut x: Vec<_> = rest.positions().iter().map(|p| p * 1.05).collect();
+    let mut v = vec![Vector3::zeros(); n];
+    let stats = stepper.step(&mut sys, &mut x, &mut v).unwrap();
+    assert_eq!(stats.iterations, 1);
+    assert!(stats.gradient_norms[1] < stats.gradient_norms[0]);
+}
