@@ -23,7 +23,10 @@ pub struct BenchArgs {
     /// Cells per side of the grids (default 80 and 400, i.e. 81×81 and 401×401 vertices).
     #[arg(long, value_delimiter = ',', default_values_t = [80usize, 400])]
     sizes: Vec<usize>,
-    /// Only the rows whose method name is listed (default: all rows).
+    /// Cells per side of the cloth for the solver rows (default 80 and 200: 19 683 and 120 603 unknowns).
+    #[arg(long, value_delimiter = ',', default_values_t = [80usize, 200])]
+    solver_sizes: Vec<usize>,
+    /// Only the rows whose method name is listed (default: all rows; `psi` and `solve` select those groups).
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
 }
@@ -34,6 +37,8 @@ struct Row {
     n_vertices: usize,
     n_hinges: usize,
     median_ms: f64,
+    /// Further named figures (solver rows: analyze, factor and solve times).
+    extra: Vec<(&'static str, f64)>,
 }
 
 /// Consecutive evaluations per row and round; the first `UNTIMED` of each block are not timed.
@@ -103,6 +108,7 @@ fn psi_rows(runs: usize) -> Vec<Row> {
         n_vertices: 0,
         n_hinges: PSI_SAMPLES,
         median_ms: ms,
+        extra: Vec::new(),
     };
     let hk = Stiffness::Uniform(1.0);
     vec![
@@ -136,6 +142,104 @@ fn psi_rows(runs: usize) -> Vec<Row> {
             time_psi(&TanBending { k: 1.0 }, &samples, runs, true),
         ),
     ]
+}
+
+/// Solver rows: one Newton system `M/Δt² + H` of a cloth (tan bending + springs, Δt = 1/60 s, wave-deformed
+/// state) per backend, with analyze / factor / solve times (medians).
+fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
+    use hinge_core::energy::{Energy, HingeTerm, System};
+    use hinge_energies::gravity::lumped_masses;
+    use hinge_energies::spring::MassSpring;
+    use hinge_solver::linear::{ChebyshevJacobi, FaerLlt, FaerLu, LinearSolver, PcgJacobi};
+    use hinge_solver::newton::Reduced;
+    let rest = unit_grid(n).map_err(|e| e.to_string())?;
+    let x = wave(rest.positions());
+    let nv = rest.n_vertices();
+    let bending = BendingModel::new(&rest, TanBending { k: 1e-3 }).map_err(|e| e.to_string())?;
+    let nh = bending.topology().hinges().len();
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(MassSpring::new(&rest, 1e3).map_err(|e| e.to_string())?),
+        Box::new(HingeTerm::new("bending", bending, Method::Refactored)),
+    ];
+    let mut sys = System::new(nv, terms).map_err(|e| e.to_string())?;
+    let e = sys
+        .evaluate(&x, Request::ALL, Parallelism::Rayon)
+        .map_err(|e| e.to_string())?;
+    let red = Reduced::new(sys.pattern(), &vec![true; 3 * nv]);
+    let masses = lumped_masses(&rest, 0.1);
+    let dt = 1.0 / 60.0;
+    let mut values: Vec<f64> = red.source.iter().map(|&k| e.hessian[k]).collect();
+    for (r, &d) in red.diag.iter().enumerate() {
+        values[d] += masses[red.dofs[r] / 3] / (dt * dt);
+    }
+    let rhs: Vec<f64> = red.dofs.iter().map(|&d| -e.gradient[d]).collect();
+    let all = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut rows = Vec::new();
+    let backends: Vec<(Box<dyn Fn() -> Box<dyn LinearSolver>>, usize)> = vec![
+        (
+            Box::new(|| Box::new(FaerLlt::default()) as Box<dyn LinearSolver>),
+            all,
+        ),
+        (
+            Box::new(|| Box::new(FaerLu::default()) as Box<dyn LinearSolver>),
+            all,
+        ),
+        (
+            Box::new(|| Box::new(PcgJacobi::new(1e-8, 2_000)) as Box<dyn LinearSolver>),
+            1,
+        ),
+        (
+            Box::new(|| Box::new(ChebyshevJacobi::new(1e-8, 200_000)) as Box<dyn LinearSolver>),
+            1,
+        ),
+    ];
+    for (make, threads) in backends {
+        let (mut ta, mut tf, mut ts) = (Vec::new(), Vec::new(), Vec::new());
+        let mut name = "";
+        let mut failed = None;
+        for _ in 0..runs.max(3) {
+            let mut s = make();
+            name = s.name();
+            let t = Instant::now();
+            if let Err(e) = s.analyze(&red.csc) {
+                failed = Some(e.to_string());
+                break;
+            }
+            ta.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            if let Err(e) = s.factor(&values) {
+                failed = Some(e.to_string());
+                break;
+            }
+            tf.push(t.elapsed().as_secs_f64() * 1e3);
+            let mut b = rhs.clone();
+            let t = Instant::now();
+            if let Err(e) = s.solve(&mut b) {
+                failed = Some(e.to_string());
+                break;
+            }
+            ts.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        if let Some(msg) = failed {
+            println!("solve:{name} at {nv} vertices failed: {msg}");
+            continue;
+        }
+        let (a, f, s) = (median(ta), median(tf), median(ts));
+        rows.push(Row {
+            method: format!("solve:{name}"),
+            threads,
+            n_vertices: nv,
+            n_hinges: nh,
+            median_ms: a + f + s,
+            extra: vec![
+                ("analyze_ms", a),
+                ("factor_ms", f),
+                ("solve_ms", s),
+                ("unknowns", red.csc.n as f64),
+            ],
+        });
+    }
+    Ok(rows)
 }
 
 /// One timed row of the benchmark.
@@ -331,25 +435,33 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                 n_vertices: nv,
                 n_hinges: nh,
                 median_ms: median(std::mem::take(&mut times[i])),
+                extra: Vec::new(),
             });
         }
     }
     if wanted("psi") {
         rows.extend(psi_rows(runs));
     }
+    if wanted("solve") {
+        for &n in &args.solver_sizes {
+            rows.extend(solver_rows(n, runs.min(7))?);
+        }
+    }
     println!(
         "{:<32} {:>7} {:>10} {:>9} {:>12} {:>12}",
         "method", "threads", "vertices", "hinges", "median_ms", "ns_per_hinge"
     );
     for r in &rows {
+        let extra: Vec<String> = r.extra.iter().map(|(k, v)| format!("{k} {v:.3}")).collect();
         println!(
-            "{:<32} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}",
+            "{:<32} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}  {}",
             r.method,
             r.threads,
             r.n_vertices,
             r.n_hinges,
             r.median_ms,
-            r.median_ms * 1e6 / r.n_hinges as f64
+            r.median_ms * 1e6 / r.n_hinges as f64,
+            extra.join(", ")
         );
     }
     for &n in &args.sizes {
@@ -410,14 +522,18 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         let results: Vec<_> = rows
             .iter()
             .map(|r| {
-                serde_json::json!({
+                let mut v = serde_json::json!({
                     "method": r.method,
                     "threads": r.threads,
                     "n_vertices": r.n_vertices,
                     "n_hinges": r.n_hinges,
                     "median_ms": r.median_ms,
                     "ns_per_hinge": r.median_ms * 1e6 / r.n_hinges as f64,
-                })
+                });
+                for (k, x) in &r.extra {
+                    v[*k] = serde_json::json!(x);
+                }
+                v
             })
             .collect();
         let text = serde_json::to_string_pretty(&serde_json::json!({ "results": results }))
