@@ -175,7 +175,8 @@ fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
     let rhs: Vec<f64> = red.dofs.iter().map(|&d| -e.gradient[d]).collect();
     let all = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut rows = Vec::new();
-    let backends: Vec<(Box<dyn Fn() -> Box<dyn LinearSolver>>, usize)> = vec![
+    type Make = Box<dyn Fn() -> Box<dyn LinearSolver>>;
+    let backends: Vec<(Make, usize)> = vec![
         (
             Box::new(|| Box::new(FaerLlt::default()) as Box<dyn LinearSolver>),
             all,
