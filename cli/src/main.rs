@@ -1,11 +1,12 @@
 //! `hinge`: the command line of the hinge bending-energy framework.
 //!
-//! Until the scenes exist (see README status), the main job prints the topology and hinge-angle statistics of
-//! a mesh: by default a grid deformed by the smooth wave of the reference data. `hinge eval` evaluates an
-//! energy on your meshes and exports it; `hinge bench` measures the assembly methods.
+//! The main job (`hinge` with no arguments) is `hinge run drape`: a cloth falling onto a sphere, simulated with
+//! implicit Euler, frames and a summary written to `out/drape/`. `hinge eval` evaluates an energy on your
+//! meshes and exports it; `hinge bench` measures the methods; `hinge stats` prints mesh statistics.
 
 mod bench;
 mod eval;
+mod run;
 
 use std::process::ExitCode;
 
@@ -26,7 +27,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Topology and hinge-angle statistics of a mesh (the default job).
+    /// Topology and hinge-angle statistics of a mesh.
     Stats {
         /// Rest mesh (OBJ). Default: an N×N unit grid.
         #[arg(long)]
@@ -43,15 +44,21 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Benchmark energy + gradient + Hessian + assembly per method (medians, ns per hinge).
     Bench(bench::BenchArgs),
+    /// Simulate a built-in scene (`drape`), writing OBJ frames and summary.json (the default job).
+    Run(run::RunArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        None => stats(None, None, 80),
+        None => run::run(run::RunArgs {
+            scene: "drape".into(),
+            ..run::RunArgs::default()
+        }),
         Some(Command::Stats { rest, deformed, n }) => stats(rest, deformed, n),
         Some(Command::Eval(args)) => eval::run(args),
         Some(Command::Bench(args)) => bench::run(args),
+        Some(Command::Run(args)) => run::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -132,6 +139,5 @@ fn stats(
         mean,
         rms
     );
-    println!("(scenes, energies and the solver are not built yet: see README status)");
     Ok(())
 }

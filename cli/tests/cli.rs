@@ -28,10 +28,61 @@ fn data(name: &str) -> String {
 }
 
 #[test]
-fn default_job_exits_zero() {
-    let o = hinge(&[]);
-    assert!(o.status.success());
-    assert!(String::from_utf8_lossy(&o.stdout).contains("hinges 19040"));
+fn default_job_runs_the_drape() {
+    let dir = tmp("default");
+    let o = Command::new(env!("CARGO_BIN_EXE_hinge"))
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("done: 90 frames"), "{stdout}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("out/drape/summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["frames"], 90);
+    assert!(dir.join("out/drape/frame_0089.obj").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn drape_rests_on_the_sphere() {
+    let dir = tmp("drape");
+    let out = dir.to_str().unwrap();
+    let o = hinge(&[
+        "run",
+        "drape",
+        "--resolution",
+        "10",
+        "--frames",
+        "60",
+        "--out",
+        out,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    // No vertex inside the sphere (radius 0.25, contact margin 5 mm) beyond 1 mm.
+    let clearance = summary["min_clearance_to_sphere"].as_f64().unwrap();
+    assert!(clearance > -1e-3, "clearance {clearance}");
+    // The centre vertex rests on top of the sphere, at the contact margin; the corners hang below it.
+    let last = hinge_core::obj::read_obj(dir.join("frame_0059.obj")).unwrap();
+    let x = last.positions();
+    let centre = x[x.len() / 2];
+    assert!((centre.z - 0.255).abs() < 3e-3, "centre at {centre}");
+    assert!(x[0].z < 0.0, "corner at {}", x[0]);
+    // Every frame was written; bad arguments are one-line errors.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 61);
+    let bad = hinge(&["run", "nosuchscene"]);
+    assert!(!bad.status.success());
+    assert_eq!(
+        String::from_utf8_lossy(&bad.stderr)
+            .trim_end()
+            .lines()
+            .count(),
+        1
+    );
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

@@ -213,6 +213,8 @@ pub struct System {
     n_vertices: usize,
     terms: Vec<Box<dyn Energy>>,
     pattern: Arc<SymmetricPattern>,
+    /// Seconds spent in each term's evaluation since the last [`System::take_timings`].
+    seconds: Vec<f64>,
 }
 
 impl std::fmt::Debug for System {
@@ -257,10 +259,12 @@ impl System {
         for t in &mut terms {
             t.bind(&pattern)?;
         }
+        let seconds = vec![0.0; terms.len()];
         Ok(Self {
             n_vertices,
             terms,
             pattern,
+            seconds,
         })
     }
 
@@ -287,6 +291,19 @@ impl System {
             gradient: vec![0.0; 3 * self.n_vertices],
             hessian: vec![0.0; self.pattern.nnz()],
         }
+    }
+
+    /// Seconds each term spent in evaluation (energy, gradient, Hessian and assembly) since the last call,
+    /// by term name; resets the counters.
+    pub fn take_timings(&mut self) -> Vec<(String, f64)> {
+        let out = self
+            .terms
+            .iter()
+            .map(|t| t.name().to_string())
+            .zip(self.seconds.iter().copied())
+            .collect();
+        self.seconds.fill(0.0);
+        out
     }
 
     /// Starts a time step for every term (see [`Energy::begin_step`]).
@@ -338,8 +355,15 @@ impl System {
             },
         };
         out.energy = 0.0;
-        for (t, e) in self.terms.iter_mut().zip(out.terms.iter_mut()) {
+        for ((t, e), sec) in self
+            .terms
+            .iter_mut()
+            .zip(out.terms.iter_mut())
+            .zip(self.seconds.iter_mut())
+        {
+            let start = std::time::Instant::now();
             *e = t.add_to(x, request, par, &mut acc)?;
+            *sec += start.elapsed().as_secs_f64();
             out.energy += *e;
         }
         Ok(())

@@ -88,6 +88,8 @@ pub use mesh::TriMesh;
 pub use topology::{Edge, Hinge, Topology};
 
 pub use nalgebra;
+/// num-dual, re-exported for `#[psi(autodiff)]` energies (`hinge_core::num_dual::DualNum`).
+pub use num_dual;
 
 /// The derive macro for hinge energies: see the crate docs and [`psi::HingePsi`].
 pub use hinge_macros::HingeEnergy;

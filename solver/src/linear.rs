@@ -77,6 +77,12 @@ pub enum LinearError {
     Faer(String),
 }
 
+/// The default backend: faer's sparse LLᵀ with symbolic reuse (Newton's inertia correction handles the
+/// indefinite case by shifting the diagonal).
+pub fn default_solver() -> Box<dyn LinearSolver> {
+    Box::new(FaerLlt::default())
+}
+
 /// Analyze / factor / solve for symmetric systems.
 pub trait LinearSolver: Send {
     /// A short name for reports (`faer-llt`, `faer-lu`, `pcg-jacobi`, `chebyshev-jacobi`, `dense`).
