@@ -12,7 +12,7 @@ use hinge_energies::pins::Pins;
 use hinge_energies::quadratic::QuadraticBending;
 use hinge_energies::spring::MassSpring;
 use hinge_solver::linear::{
-    ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearError, LinearSolver, PcgJacobi,
+    ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearError, LinearSolver, PcgJacobi, default_solver,
 };
 use hinge_solver::newton::{ImplicitEuler, Inertia, Newton, NewtonParams, Reduced, SolverError};
 use hinge_tests::*;
