@@ -7,6 +7,7 @@
 mod bench;
 mod eval;
 mod run;
+mod scene;
 
 use std::process::ExitCode;
 
@@ -44,8 +45,15 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Benchmark energy + gradient + Hessian + assembly per method (medians, ns per hinge).
     Bench(bench::BenchArgs),
-    /// Simulate a built-in scene (`drape`), writing OBJ frames and summary.json (the default job).
+    /// Simulate a scene (built-in name or TOML file), writing OBJ frames and summary.json (the default job).
     Run(run::RunArgs),
+    /// List the built-in scenes, or print one's TOML (`hinge scenes show NAME`).
+    Scenes {
+        /// `show`
+        action: Option<String>,
+        /// Scene name for `show`.
+        name: Option<String>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -59,6 +67,7 @@ fn main() -> ExitCode {
         Some(Command::Eval(args)) => eval::run(args),
         Some(Command::Bench(args)) => bench::run(args),
         Some(Command::Run(args)) => run::run(args),
+        Some(Command::Scenes { action, name }) => scenes(action.as_deref(), name.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -66,6 +75,31 @@ fn main() -> ExitCode {
             eprintln!("hinge: {message}");
             ExitCode::FAILURE
         }
+    }
+}
+
+fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
+    match (action, name) {
+        (None, _) => {
+            for (n, _) in scene::BUILT_IN {
+                println!("{n}");
+            }
+            Ok(())
+        }
+        (Some("show"), Some(n)) => match scene::BUILT_IN.iter().find(|(b, _)| *b == n) {
+            Some((_, text)) => {
+                print!("{text}");
+                Ok(())
+            }
+            None => Err(format!(
+                "unknown scene `{n}` (built-in: {})",
+                scene::BUILT_IN.map(|b| b.0).join(", ")
+            )),
+        },
+        (Some("show"), None) => Err("usage: hinge scenes show NAME".into()),
+        (Some(other), _) => Err(format!(
+            "unknown action `{other}` (use `hinge scenes` or `hinge scenes show NAME`)"
+        )),
     }
 }
 

@@ -1,78 +1,55 @@
 //! `hinge run`: simulate a built-in scene with implicit Euler, writing OBJ frames and `summary.json`.
 //!
-//! Built-in scenes are defined in code for now (the TOML scene format of the scenes issue is not built
-//! yet): `drape`, after the paper's §7.1 — a square cloth falls onto a sphere; StVK membrane + tan bending
-//! (stiffness from material, Eq. 11) + gravity + sphere contact; no damping.
+//! Scenes are TOML ([`crate::scene`]); the built-in `drape` (after the paper's §7.1: a square cloth falls onto
+//! a sphere; StVK membrane + tan bending with k from Eq. 11 + gravity + sphere contact; no damping) is the
+//! default job.
 
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Args;
+use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::{Energy, HingeTerm, System};
-use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::obj::write_obj;
-use hinge_energies::bending::{TanBending, stiffness_from_material};
+use hinge_core::psi::HingePsi;
+use hinge_energies::bending::{
+    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
+};
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::pins::Pins;
-use hinge_solver::linear::default_solver;
+use hinge_solver::linear::{
+    ChebyshevJacobi, Dense, FaerLu, LinearSolver, PcgJacobi, default_solver,
+};
+
+use crate::scene::Scene;
 use hinge_solver::newton::{ImplicitEuler, NewtonParams};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
 pub struct RunArgs {
-    /// Built-in scene name (`drape`).
+    /// Built-in scene name (`hinge scenes` lists them) or a scene TOML file.
     #[arg(default_value = "drape")]
     pub scene: String,
     /// Frames to simulate (default: the scene's).
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Cells per side of the cloth (default: the scene's).
+    /// Grid cells along x (y scaled alike; default: the scene's).
     #[arg(long)]
     pub resolution: Option<usize>,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Output directory (default: out/SCENE).
+    /// Output directory (default: out/NAME).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Do not write OBJ frames (summary only).
     #[arg(long)]
     pub no_frames: bool,
-}
-
-/// The drape scene's parameters.
-#[derive(Debug, Clone)]
-pub struct Drape {
-    /// Cells per side.
-    pub cells: usize,
-    /// Frames (one implicit-Euler step each).
-    pub frames: usize,
-    /// Time step (s).
-    pub dt: f64,
-    /// Sphere radius (m); the sphere is centred at the origin.
-    pub radius: f64,
-    /// Initial height of the flat cloth (m).
-    pub height: f64,
-    /// Contact stiffness (N/m) and margin (m).
-    pub contact: (f64, f64),
-}
-
-impl Default for Drape {
-    fn default() -> Self {
-        Self {
-            cells: 30,
-            frames: 90,
-            dt: 1.0 / 60.0,
-            radius: 0.25,
-            height: 0.3,
-            contact: (2e3, 0.005),
-        }
-    }
 }
 
 /// What a run produced.
@@ -92,74 +69,111 @@ pub struct RunSummary {
     pub linear_solve_seconds: f64,
     /// Wall time of the whole run.
     pub total_seconds: f64,
-    /// Smallest signed distance of a vertex to the sphere at the end (negative: inside).
-    pub min_clearance: f64,
-    /// Final positions.
-    pub positions: Vec<Vector3<f64>>,
+    /// Smallest signed distance of a vertex to a sphere obstacle at the end (negative: inside).
+    pub min_clearance: Option<f64>,
     /// Vertex count.
     pub n_vertices: usize,
 }
 
-/// Simulates the drape scene; writes frames to `out` when given.
+fn bending_term<P: HingePsi + Send + 'static>(
+    rest: &TriMesh,
+    psi: P,
+    damping: f64,
+) -> Result<Box<dyn Energy>, String>
+where
+    P::Params: Send + Sync,
+{
+    let err = |e: hinge_core::EvalError| e.to_string();
+    Ok(if damping > 0.0 {
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(rest, (psi, ViscousDamping { kd: damping })).map_err(err)?,
+            Method::Refactored,
+        ))
+    } else {
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(rest, psi).map_err(err)?,
+            Method::Refactored,
+        ))
+    })
+}
+
+/// Simulates `scene` from rest `rest` with implicit Euler; writes frames to `out` when given.
 ///
 /// # Errors
 /// A one-line message (a failed step names the frame and the solver's diagnostics).
-pub fn simulate_drape(
-    scene: &Drape,
+pub fn simulate(
+    scene: &Scene,
+    rest: &TriMesh,
     out: Option<&std::path::Path>,
     mut progress: impl FnMut(usize, usize, f64),
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
-    let flat = grid(scene.cells, scene.cells, 1.0, 1.0, Diagonal::Alternating)
-        .map_err(|e| e.to_string())?;
-    let x0: Vec<Vector3<f64>> = flat
-        .positions()
-        .iter()
-        .map(|p| Vector3::new(p.x - 0.5, p.y - 0.5, scene.height))
-        .collect();
-    let rest = flat.with_positions(x0.clone()).map_err(|e| e.to_string())?;
     let n = rest.n_vertices();
-    let (young, poisson, thickness, density) = (2e5, 0.3, 5e-4, 0.1);
-    let k_bend = stiffness_from_material(young, thickness, poisson);
-    let bending = BendingModel::new(&rest, TanBending { k: k_bend }).map_err(|e| e.to_string())?;
-    let masses = lumped_masses(&rest, density);
-    let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(HingeTerm::new("bending", bending, Method::Refactored)),
-        Box::new(StvkMembrane::new(&rest, young, poisson, thickness).map_err(|e| e.to_string())?),
+    let m = &scene.material;
+    let k = stiffness_from_material(m.young, m.thickness, m.poisson);
+    let kd = scene.bending.damping;
+    let bending = match scene.bending.energy.as_str() {
+        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
+        "willmore" => bending_term(rest, Willmore { k }, kd)?,
+        "bridson" => bending_term(rest, Bridson { k }, kd)?,
+        _ => bending_term(rest, TanBending { k }, kd)?,
+    };
+    let masses = lumped_masses(rest, m.density);
+    let mut terms: Vec<Box<dyn Energy>> = vec![
+        bending,
         Box::new(
-            Gravity::new(masses.clone(), Vector3::new(0.0, 0.0, -9.81))
+            StvkMembrane::new(rest, m.young, m.poisson, m.thickness).map_err(|e| e.to_string())?,
+        ),
+        Box::new(
+            Gravity::new(masses.clone(), Vector3::from(scene.gravity))
                 .map_err(|e| e.to_string())?,
         ),
-        Box::new(
-            Contact::new(
-                n,
-                Obstacle::Sphere {
-                    center: Vector3::zeros(),
-                    radius: scene.radius,
-                },
-                scene.contact.0,
-                scene.contact.1,
-            )
-            .map_err(|e| e.to_string())?,
-        ),
     ];
+    let mut spheres = Vec::new();
+    for (i, o) in scene.obstacles.iter().enumerate() {
+        let obstacle = match (o.center, o.radius, o.point, o.normal) {
+            (Some(c), Some(r), _, _) => {
+                spheres.push((Vector3::from(c), r));
+                Obstacle::Sphere {
+                    center: Vector3::from(c),
+                    radius: r,
+                }
+            }
+            (_, _, Some(p), Some(nrm)) => Obstacle::Plane {
+                point: Vector3::from(p),
+                normal: Vector3::from(nrm),
+            },
+            _ => return Err(format!("obstacles[{i}]: incomplete")),
+        };
+        terms.push(Box::new(
+            Contact::new(n, obstacle, o.stiffness, o.margin)
+                .map_err(|e| format!("obstacles[{i}]: {e}"))?,
+        ));
+    }
+    let mut pinned = scene.pins.vertices.clone();
+    if let Some(xmax) = scene.pins.x_at_most {
+        pinned.extend((0..n).filter(|&v| rest.positions()[v].x <= xmax));
+    }
+    let pins = Pins::new(n, pinned).map_err(|e| format!("pins: {e}"))?;
     let mut system = System::new(n, terms).map_err(|e| e.to_string())?;
     let params = NewtonParams {
-        gradient_tolerance: 1e-6,
+        gradient_tolerance: scene.solver.gradient_tolerance,
         step_tolerance: 1e-9,
-        max_iterations: 100,
+        max_iterations: scene.solver.max_iterations,
         ..NewtonParams::default()
     };
-    let mut stepper = ImplicitEuler::new(
-        &system,
-        scene.dt,
-        masses,
-        Pins::default(),
-        default_solver(),
-        params,
-    )
-    .map_err(|e| e.to_string())?;
-    let (mut x, mut v) = (x0, vec![Vector3::zeros(); n]);
+    let solver: Box<dyn LinearSolver> = match scene.solver.backend.as_str() {
+        "faer-lu" => Box::new(FaerLu::default()),
+        "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
+        "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
+        "dense" => Box::new(Dense::default()),
+        _ => default_solver(),
+    };
+    let mut stepper = ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
+        .map_err(|e| e.to_string())?;
+    let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,
@@ -168,8 +182,7 @@ pub fn simulate_drape(
         other_energy_seconds: 0.0,
         linear_solve_seconds: 0.0,
         total_seconds: 0.0,
-        min_clearance: f64::INFINITY,
-        positions: Vec::new(),
+        min_clearance: None,
         n_vertices: n,
     };
     for frame in 0..scene.frames {
@@ -197,30 +210,31 @@ pub fn simulate_drape(
         }
         progress(frame, stats.iterations, t.elapsed().as_secs_f64());
     }
-    summary.min_clearance = x
+    summary.min_clearance = spheres
         .iter()
-        .map(|p| p.norm() - scene.radius)
-        .fold(f64::INFINITY, f64::min);
-    summary.positions = x;
+        .map(|(c, r)| {
+            x.iter()
+                .map(|p| (p - c).norm() - r)
+                .fold(f64::INFINITY, f64::min)
+        })
+        .reduce(f64::min);
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
 }
 
 /// Runs `hinge run`.
 pub fn run(args: RunArgs) -> Result<(), String> {
-    if args.scene != "drape" {
-        return Err(format!("unknown scene `{}` (built-in: drape)", args.scene));
-    }
-    let mut scene = Drape::default();
+    let (mut scene, base) = crate::scene::load(&args.scene)?;
     if let Some(f) = args.frames {
+        if f == 0 {
+            return Err("--frames must be at least 1".into());
+        }
         scene.frames = f;
     }
     if let Some(r) = args.resolution {
-        if r < 2 {
-            return Err("--resolution must be at least 2".into());
-        }
-        scene.cells = r;
+        scene.set_resolution(r)?;
     }
+    let rest = scene.rest_mesh(base.as_deref())?;
     let threads = args
         .threads
         .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -230,34 +244,35 @@ pub fn run(args: RunArgs) -> Result<(), String> {
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("out").join(&args.scene));
+        .unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .map_err(|e| e.to_string())?;
     println!(
-        "hinge run drape: {0}×{0} cells ({1} vertices), {2} frames of {3:.4} s, {threads} threads → {4}",
-        scene.cells,
-        (scene.cells + 1) * (scene.cells + 1),
+        "hinge run {}: {} vertices, {} triangles, {} frames of {:.4} s, {threads} threads → {}",
+        scene.name,
+        rest.n_vertices(),
+        rest.n_triangles(),
         scene.frames,
         scene.dt,
         out.display()
     );
     let frames_dir = (!args.no_frames).then_some(out.as_path());
+    let frames = scene.frames;
     let summary = pool.install(|| {
-        simulate_drape(&scene, frames_dir, |frame, iterations, seconds| {
+        simulate(&scene, &rest, frames_dir, |frame, iterations, seconds| {
             println!(
-                "frame {:>4}/{}: {iterations} Newton iterations, {:.1} ms",
+                "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
                 frame + 1,
-                scene.frames,
                 seconds * 1e3
             );
             let _ = std::io::stdout().flush();
         })
     })?;
     let json = serde_json::json!({
-        "scene": "drape",
+        "scene": scene.name,
         "frames": summary.frames,
         "n_vertices": summary.n_vertices,
         "newton_iterations": summary.newton_iterations,
@@ -277,7 +292,7 @@ pub fn run(args: RunArgs) -> Result<(), String> {
     )
     .map_err(|e| format!("{}: {e}", path.display()))?;
     println!(
-        "done: {} frames, {} Newton iterations ({} line-search halvings); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s; min clearance to the sphere {:.2e} m",
+        "done: {} frames, {} Newton iterations ({} line-search halvings); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
         summary.frames,
         summary.newton_iterations,
         summary.line_search_steps,
@@ -285,7 +300,9 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         summary.other_energy_seconds,
         summary.linear_solve_seconds,
         summary.total_seconds,
-        summary.min_clearance
+        summary.min_clearance.map_or(String::new(), |c| format!(
+            "; min clearance to the sphere {c:.2e} m"
+        ))
     );
     Ok(())
 }

@@ -292,3 +292,86 @@ fn every_listed_energy_evaluates() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn scenes_are_listed_shown_and_validated() {
+    let dir = tmp("scenes");
+    let list = hinge(&["scenes"]);
+    assert!(list.status.success());
+    assert_eq!(String::from_utf8_lossy(&list.stdout).trim(), "drape");
+    // `show` prints a scene file that runs as is.
+    let shown = hinge(&["scenes", "show", "drape"]);
+    assert!(shown.status.success());
+    let file = dir.join("drape.toml");
+    std::fs::write(&file, &shown.stdout).unwrap();
+    let out = dir.join("out");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "3",
+        "--resolution",
+        "6",
+        "--out",
+        out.to_str().unwrap(),
+        "--no-frames",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("summary.json").exists());
+    // Errors name the key path, on one line, with a non-zero exit.
+    let text = String::from_utf8_lossy(&shown.stdout).to_string();
+    let cases = [
+        (
+            text.replace(
+                "diagonal = \"alternating\"",
+                "diagonal = \"alternating\"\ncolour = \"red\"",
+            ),
+            "mesh.colour",
+        ),
+        (
+            text.replace("poisson = 0.3", "poisson = \"soft\""),
+            "material.poisson",
+        ),
+        (
+            text.replace("poisson = 0.3", "poisson = 0.7"),
+            "material.poisson",
+        ),
+        (
+            text.replace("radius = 0.25", "radius = -1.0"),
+            "obstacles[0].radius",
+        ),
+        (
+            text.replace("energy = \"tan-bending\"", "energy = \"magic\""),
+            "bending.energy",
+        ),
+        (
+            text.replace("frames = 90", "frames = 90\nspeed = 2"),
+            "speed",
+        ),
+    ];
+    for (i, (toml, key)) in cases.iter().enumerate() {
+        let f = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&f, toml).unwrap();
+        let o = hinge(&["run", f.to_str().unwrap(), "--frames", "1"]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "case {i} should fail");
+        assert_eq!(err.trim_end().lines().count(), 1, "case {i}: {err}");
+        assert!(err.contains(key), "case {i}: `{err}` should name `{key}`");
+    }
+    for args in [
+        vec!["run", "/nonexistent/scene.toml"],
+        vec!["scenes", "show", "nosuch"],
+        vec!["run", "drape", "--resolution", "1"],
+    ] {
+        let o = hinge(&args);
+        assert!(!o.status.success(), "{args:?}");
+        assert_eq!(
+            String::from_utf8_lossy(&o.stderr)
+                .trim_end()
+                .lines()
+                .count(),
+            1
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

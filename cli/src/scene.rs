@@ -1,0 +1,348 @@
+//! Scene files (TOML): mesh, material, energies, obstacles, pins, gravity, time step, frames, solver.
+//! Unknown keys and invalid values are errors naming the key path. Built-in scenes are embedded in the
+//! binary (`hinge scenes`, `hinge scenes show NAME`).
+
+use std::path::{Path, PathBuf};
+
+use hinge_core::TriMesh;
+use hinge_core::grid::{Diagonal, grid};
+use hinge_core::nalgebra::Vector3;
+use serde::Deserialize;
+
+/// Built-in scenes: name and TOML text.
+pub const BUILT_IN: [(&str, &str); 1] = [("drape", include_str!("../scenes/drape.toml"))];
+
+/// A scene.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Name (used for the default output directory).
+    pub name: String,
+    /// Frames to simulate (one implicit-Euler step each).
+    pub frames: usize,
+    /// Time step in seconds.
+    pub dt: f64,
+    /// The mesh.
+    pub mesh: MeshSpec,
+    /// Material.
+    pub material: Material,
+    /// Bending energy.
+    #[serde(default)]
+    pub bending: BendingSpec,
+    /// Gravity (m/s²).
+    #[serde(default = "default_gravity")]
+    pub gravity: [f64; 3],
+    /// Analytic obstacles.
+    #[serde(default)]
+    pub obstacles: Vec<ObstacleSpec>,
+    /// Pinned vertices.
+    #[serde(default)]
+    pub pins: PinSpec,
+    /// Solver settings.
+    #[serde(default)]
+    pub solver: SolverSpec,
+}
+
+fn default_gravity() -> [f64; 3] {
+    [0.0, 0.0, -9.81]
+}
+
+/// The mesh: a generated grid (`cells`, `size`, `origin`, `diagonal`) or an OBJ file (`obj`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSpec {
+    /// Grid cells along x and y.
+    pub cells: Option<[usize; 2]>,
+    /// Grid size (m).
+    #[serde(default = "unit_size")]
+    pub size: [f64; 2],
+    /// Position of the grid's first vertex.
+    #[serde(default)]
+    pub origin: [f64; 3],
+    /// `forward`, `backward` or `alternating`.
+    #[serde(default = "default_diagonal")]
+    pub diagonal: String,
+    /// An OBJ file instead of a grid (relative to the scene file).
+    pub obj: Option<PathBuf>,
+}
+
+fn unit_size() -> [f64; 2] {
+    [1.0, 1.0]
+}
+
+fn default_diagonal() -> String {
+    "alternating".into()
+}
+
+/// Material constants.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Material {
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson ratio.
+    pub poisson: f64,
+    /// Thickness (m).
+    pub thickness: f64,
+    /// Mass per area (kg/m²).
+    pub density: f64,
+}
+
+/// Bending energy and damping.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BendingSpec {
+    /// `discrete-shells`, `tan-bending`, `willmore` or `bridson`.
+    pub energy: String,
+    /// Viscous damping coefficient k_d (0: none).
+    #[serde(default)]
+    pub damping: f64,
+}
+
+impl Default for BendingSpec {
+    fn default() -> Self {
+        Self {
+            energy: "tan-bending".into(),
+            damping: 0.0,
+        }
+    }
+}
+
+/// A sphere (`center`, `radius`) or a plane (`point`, `normal`) with penalty `stiffness` and `margin`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObstacleSpec {
+    /// `sphere` or `plane`.
+    pub kind: String,
+    /// Sphere centre.
+    pub center: Option<[f64; 3]>,
+    /// Sphere radius.
+    pub radius: Option<f64>,
+    /// A point of the plane.
+    pub point: Option<[f64; 3]>,
+    /// Plane normal.
+    pub normal: Option<[f64; 3]>,
+    /// Penalty stiffness.
+    pub stiffness: f64,
+    /// Contact margin.
+    #[serde(default)]
+    pub margin: f64,
+}
+
+/// Pinned vertices: explicit indices and/or every vertex whose rest x is at most `x_at_most`.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PinSpec {
+    /// Vertex indices.
+    #[serde(default)]
+    pub vertices: Vec<usize>,
+    /// Pin every vertex with rest x ≤ this.
+    pub x_at_most: Option<f64>,
+}
+
+/// Newton and linear-solver settings.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    /// `faer-llt`, `faer-lu`, `pcg-jacobi`, `chebyshev-jacobi` or `dense`.
+    #[serde(default = "default_backend")]
+    pub backend: String,
+    /// Newton iteration limit per step.
+    #[serde(default = "default_iterations")]
+    pub max_iterations: usize,
+    /// Newton gradient tolerance.
+    #[serde(default = "default_tolerance")]
+    pub gradient_tolerance: f64,
+}
+
+fn default_backend() -> String {
+    "faer-llt".into()
+}
+fn default_iterations() -> usize {
+    100
+}
+fn default_tolerance() -> f64 {
+    1e-6
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            backend: default_backend(),
+            max_iterations: default_iterations(),
+            gradient_tolerance: default_tolerance(),
+        }
+    }
+}
+
+/// Parses scene TOML; `origin` names the text in errors.
+///
+/// # Errors
+/// One line naming the key path of an unknown key or invalid value.
+pub fn parse(text: &str, origin: &str) -> Result<Scene, String> {
+    let de = toml::Deserializer::parse(text)
+        .map_err(|e| format!("{origin}: {}", one_line(&e.to_string())))?;
+    let scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
+        let path = e.path().to_string();
+        format!(
+            "{origin}: {}: {}",
+            if path == "." {
+                "(top level)".into()
+            } else {
+                path
+            },
+            one_line(&e.inner().to_string())
+        )
+    })?;
+    scene.validate().map_err(|m| format!("{origin}: {m}"))?;
+    Ok(scene)
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// A built-in scene by name, or a TOML file by path.
+///
+/// # Errors
+/// Unknown scene, unreadable file, or a parse/validation error.
+pub fn load(name_or_path: &str) -> Result<(Scene, Option<PathBuf>), String> {
+    if let Some((_, text)) = BUILT_IN.iter().find(|(n, _)| *n == name_or_path) {
+        return parse(text, name_or_path).map(|s| (s, None));
+    }
+    if name_or_path.ends_with(".toml") || Path::new(name_or_path).exists() {
+        let text =
+            std::fs::read_to_string(name_or_path).map_err(|e| format!("{name_or_path}: {e}"))?;
+        let dir = Path::new(name_or_path).parent().map(Path::to_path_buf);
+        return parse(&text, name_or_path).map(|s| (s, dir));
+    }
+    Err(format!(
+        "unknown scene `{name_or_path}` (built-in: {}; or give a .toml file)",
+        BUILT_IN.map(|b| b.0).join(", ")
+    ))
+}
+
+fn positive(name: &str, v: f64) -> Result<(), String> {
+    if v > 0.0 && v.is_finite() {
+        Ok(())
+    } else {
+        Err(format!("{name}: must be positive and finite, got {v}"))
+    }
+}
+
+impl Scene {
+    /// Value checks serde cannot express, each naming the key path.
+    fn validate(&self) -> Result<(), String> {
+        positive("dt", self.dt)?;
+        positive("material.young", self.material.young)?;
+        positive("material.thickness", self.material.thickness)?;
+        positive("material.density", self.material.density)?;
+        if !(self.material.poisson > -1.0 && self.material.poisson < 0.5) {
+            return Err(format!(
+                "material.poisson: must lie in (-1, 0.5), got {}",
+                self.material.poisson
+            ));
+        }
+        if !(self.bending.damping >= 0.0 && self.bending.damping.is_finite()) {
+            return Err(format!(
+                "bending.damping: must be non-negative, got {}",
+                self.bending.damping
+            ));
+        }
+        if !["discrete-shells", "tan-bending", "willmore", "bridson"]
+            .contains(&self.bending.energy.as_str())
+        {
+            return Err(format!(
+                "bending.energy: unknown `{}` (discrete-shells, tan-bending, willmore, bridson)",
+                self.bending.energy
+            ));
+        }
+        match (&self.mesh.cells, &self.mesh.obj) {
+            (Some(c), None) if c[0] >= 1 && c[1] >= 1 => {}
+            (Some(_), None) => return Err("mesh.cells: need at least one cell each way".into()),
+            (None, Some(_)) => {}
+            _ => return Err("mesh: give exactly one of `cells` (a grid) or `obj` (a file)".into()),
+        }
+        if !["forward", "backward", "alternating"].contains(&self.mesh.diagonal.as_str()) {
+            return Err(format!(
+                "mesh.diagonal: unknown `{}` (forward, backward, alternating)",
+                self.mesh.diagonal
+            ));
+        }
+        for (i, o) in self.obstacles.iter().enumerate() {
+            match (o.kind.as_str(), o.center, o.radius, o.point, o.normal) {
+                ("sphere", Some(_), Some(r), None, None) => {
+                    positive(&format!("obstacles[{i}].radius"), r)?
+                }
+                ("plane", None, None, Some(_), Some(_)) => {}
+                ("sphere", ..) => {
+                    return Err(format!(
+                        "obstacles[{i}]: a sphere takes `center` and `radius`"
+                    ));
+                }
+                ("plane", ..) => {
+                    return Err(format!(
+                        "obstacles[{i}]: a plane takes `point` and `normal`"
+                    ));
+                }
+                (k, ..) => {
+                    return Err(format!(
+                        "obstacles[{i}].kind: unknown `{k}` (sphere, plane)"
+                    ));
+                }
+            }
+        }
+        if ![
+            "faer-llt",
+            "faer-lu",
+            "pcg-jacobi",
+            "chebyshev-jacobi",
+            "dense",
+        ]
+        .contains(&self.solver.backend.as_str())
+        {
+            return Err(format!("solver.backend: unknown `{}`", self.solver.backend));
+        }
+        if self.frames == 0 {
+            return Err("frames: must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    /// Scales a grid's cells so that it has `cells_x` cells along x (y scaled alike).
+    pub fn set_resolution(&mut self, cells_x: usize) -> Result<(), String> {
+        let Some(c) = self.mesh.cells.as_mut() else {
+            return Err("--resolution applies to grid scenes only".into());
+        };
+        if cells_x < 2 {
+            return Err("--resolution must be at least 2".into());
+        }
+        let y = ((c[1] as f64) * cells_x as f64 / c[0] as f64)
+            .round()
+            .max(1.0) as usize;
+        *c = [cells_x, y];
+        Ok(())
+    }
+
+    /// The rest mesh.
+    ///
+    /// # Errors
+    /// A one-line message (unreadable or invalid OBJ, invalid grid).
+    pub fn rest_mesh(&self, base: Option<&Path>) -> Result<TriMesh, String> {
+        if let Some(obj) = &self.mesh.obj {
+            let path = base.map_or(obj.clone(), |b| b.join(obj));
+            return hinge_core::obj::read_obj(&path).map_err(|e| e.to_string());
+        }
+        let c = self.mesh.cells.unwrap_or([1, 1]);
+        let diagonal = match self.mesh.diagonal.as_str() {
+            "forward" => Diagonal::Forward,
+            "backward" => Diagonal::Backward,
+            _ => Diagonal::Alternating,
+        };
+        let g = grid(c[0], c[1], self.mesh.size[0], self.mesh.size[1], diagonal)
+            .map_err(|e| format!("mesh: {e}"))?;
+        let o = Vector3::from(self.mesh.origin);
+        let moved = g.positions().iter().map(|p| p + o).collect();
+        g.with_positions(moved).map_err(|e| format!("mesh: {e}"))
+    }
+}
