@@ -578,6 +578,7 @@ impl<P: HingePsi> BendingModel<P> {
     pub fn new_scratch(&self) -> Scratch {
         Scratch {
             hinges: vec![HingeState::default(); self.topology.hinges().len()],
+            dpsi: vec![0.0; self.topology.hinges().len()],
         }
     }
 
@@ -668,8 +669,10 @@ impl<P: HingePsi> BendingModel<P> {
                 got: hessian.len(),
             });
         }
-        if scratch.hinges.len() != self.topology.hinges().len() {
-            scratch.hinges = vec![HingeState::default(); self.topology.hinges().len()];
+        if scratch.hinges.len() != self.topology.hinges().len()
+            || scratch.dpsi.len() != scratch.hinges.len()
+        {
+            *scratch = self.new_scratch();
         }
         // Pass 1: per hinge.
         let need_grad = request.gradient || (request.hessian && !P::D2_IS_ZERO);
@@ -705,7 +708,11 @@ impl<P: HingePsi> BendingModel<P> {
         if let Some(e) = first_error {
             return Err(e);
         }
+        for (d, s) in scratch.dpsi.iter_mut().zip(&scratch.hinges) {
+            *d = s.dpsi;
+        }
         let states = &scratch.hinges[..];
+        let dpsi = &scratch.dpsi[..];
         let e: f64 = if request.value {
             states.iter().map(|s| s.psi).sum()
         } else {
@@ -720,6 +727,7 @@ impl<P: HingePsi> BendingModel<P> {
             model: self,
             x,
             states,
+            dpsi,
             request,
             method,
             local_only: false,
@@ -755,20 +763,26 @@ impl<P: HingePsi> BendingModel<P> {
         scratch: &mut Scratch,
         out: &mut Evaluation,
     ) -> Result<f64, EvalError> {
-        self.evaluate_into(
-            x,
-            Request::VALUE,
-            method,
-            Parallelism::Sequential,
-            scratch,
-            out,
-        )?;
+        check_same_vertex_count(self.n_vertices(), x.len())?;
+        if scratch.hinges.len() != self.topology.hinges().len()
+            || out.gradient.len() != 3 * self.n_vertices()
+        {
+            return Err(EvalError::BufferLength {
+                buffer: "scratch or gradient",
+                expected: self.topology.hinges().len(),
+                got: scratch.hinges.len(),
+            });
+        }
         for (s, &h) in scratch.hinges.iter_mut().zip(&self.state_order) {
             self.hinge_pass(h as usize, x, true, s)?;
+        }
+        for (d, s) in scratch.dpsi.iter_mut().zip(&scratch.hinges) {
+            *d = s.dpsi;
         }
         let ctx = Ctx {
             model: self,
             x,
+            dpsi: &scratch.dpsi,
             states: &scratch.hinges,
             request: Request::ALL,
             method,
@@ -831,6 +845,9 @@ fn project_psd(h: SMatrix<f64, 12, 12>) -> SMatrix<f64, 12, 12> {
 #[derive(Debug, Clone)]
 pub struct Scratch {
     hinges: Vec<HingeState>,
+    /// ψ′ per state slot, compact: the triangle pass reads it for all three edges of every triangle, and
+    /// the 120-byte states would cost a cache line each.
+    dpsi: Vec<f64>,
 }
 
 fn slice_of(s: &mut [f64], a: usize, b: usize) -> &mut [f64] {
@@ -845,6 +862,7 @@ struct Ctx<'a, P: HingePsi> {
     model: &'a BendingModel<P>,
     x: &'a [Vector3<f64>],
     states: &'a [HingeState],
+    dpsi: &'a [f64],
     request: Request,
     method: Method,
     local_only: bool,
@@ -1011,7 +1029,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             if h == NONE || gauss_newton {
                 0.0
             } else {
-                self.states[h as usize].dpsi
+                self.dpsi[h as usize]
             }
         });
         let cs = &f.cos_angle;
