@@ -308,11 +308,7 @@ pub struct PcgJacobi {
     pub tolerance: f64,
     /// Iteration limit.
     pub max_iterations: usize,
-    pattern: Option<LowerCsc>,
-    diag: Vec<usize>,
-    values: Vec<f64>,
-    inv_diag: Vec<f64>,
-    analyses: usize,
+    jacobi: JacobiSystem,
     /// Iterations used by the last solve.
     pub last_iterations: usize,
 }
@@ -323,19 +319,45 @@ impl PcgJacobi {
         Self {
             tolerance,
             max_iterations,
-            pattern: None,
-            diag: Vec::new(),
-            values: Vec::new(),
-            inv_diag: Vec::new(),
-            analyses: 0,
+            jacobi: JacobiSystem::default(),
             last_iterations: 0,
         }
     }
 }
 
-fn analyze_iterative(p: &LowerCsc) -> Result<Vec<usize>, LinearError> {
-    p.diagonal_positions()
-        .ok_or_else(|| LinearError::Usage("every column must store its diagonal".into()))
+/// The state the Jacobi-based iterative solvers share: the pattern, its diagonal positions, the matrix
+/// values and the inverse diagonal.
+#[derive(Debug, Default)]
+struct JacobiSystem {
+    pattern: Option<LowerCsc>,
+    diag: Vec<usize>,
+    values: Vec<f64>,
+    inv_diag: Vec<f64>,
+    analyses: usize,
+}
+
+impl JacobiSystem {
+    fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.diag = p
+            .diagonal_positions()
+            .ok_or_else(|| LinearError::Usage("every column must store its diagonal".into()))?;
+        self.pattern = Some(p.clone());
+        self.analyses += 1;
+        Ok(())
+    }
+
+    fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let Some(p) = &self.pattern else {
+            return Err(LinearError::Usage("factor before analyze".into()));
+        };
+        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)
+    }
+
+    fn pattern(&self) -> Result<&LowerCsc, LinearError> {
+        self.pattern
+            .as_ref()
+            .ok_or_else(|| LinearError::Usage("solve before analyze".into()))
+    }
 }
 
 fn jacobi_setup(
@@ -371,23 +393,18 @@ impl LinearSolver for PcgJacobi {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
-        self.diag = analyze_iterative(p)?;
-        self.pattern = Some(p.clone());
-        self.analyses += 1;
-        Ok(())
+        self.jacobi.analyze(p)
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
-        let Some(p) = &self.pattern else {
-            return Err(LinearError::Usage("factor before analyze".into()));
-        };
-        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)
+        self.jacobi.factor(values)
     }
 
     fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
-        let Some(p) = &self.pattern else {
-            return Err(LinearError::Usage("solve before analyze".into()));
-        };
+        let JacobiSystem {
+            values, inv_diag, ..
+        } = &self.jacobi;
+        let p = self.jacobi.pattern()?;
         let n = p.n;
         let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         let mut x = vec![0.0; n];
@@ -396,13 +413,13 @@ impl LinearSolver for PcgJacobi {
             return Ok(());
         }
         let mut r = b.to_vec();
-        let mut z: Vec<f64> = r.iter().zip(&self.inv_diag).map(|(a, d)| a * d).collect();
+        let mut z: Vec<f64> = r.iter().zip(inv_diag).map(|(a, d)| a * d).collect();
         let mut d = z.clone();
         let mut q = vec![0.0; n];
         let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
         let mut res = 1.0;
         for it in 0..self.max_iterations {
-            p.mul(&self.values, &d, &mut q);
+            p.mul(values, &d, &mut q);
             let dq: f64 = d.iter().zip(&q).map(|(a, b)| a * b).sum();
             if !(dq > 0.0) {
                 return Err(LinearError::NotPositiveDefinite { index: it });
@@ -419,7 +436,7 @@ impl LinearSolver for PcgJacobi {
                 return check_finite(b);
             }
             for i in 0..n {
-                z[i] = r[i] * self.inv_diag[i];
+                z[i] = r[i] * inv_diag[i];
             }
             let rz_new: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
             let beta = rz_new / rz;
@@ -437,7 +454,7 @@ impl LinearSolver for PcgJacobi {
     }
 
     fn analyses(&self) -> usize {
-        self.analyses
+        self.jacobi.analyses
     }
 }
 
@@ -452,12 +469,8 @@ pub struct ChebyshevJacobi {
     pub tolerance: f64,
     /// Iteration limit.
     pub max_iterations: usize,
-    pattern: Option<LowerCsc>,
-    diag: Vec<usize>,
-    values: Vec<f64>,
-    inv_diag: Vec<f64>,
+    jacobi: JacobiSystem,
     rho: f64,
-    analyses: usize,
     /// Iterations used by the last solve.
     pub last_iterations: usize,
 }
@@ -468,12 +481,8 @@ impl ChebyshevJacobi {
         Self {
             tolerance,
             max_iterations,
-            pattern: None,
-            diag: Vec::new(),
-            values: Vec::new(),
-            inv_diag: Vec::new(),
+            jacobi: JacobiSystem::default(),
             rho: 0.0,
-            analyses: 0,
             last_iterations: 0,
         }
     }
@@ -490,17 +499,15 @@ impl LinearSolver for ChebyshevJacobi {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
-        self.diag = analyze_iterative(p)?;
-        self.pattern = Some(p.clone());
-        self.analyses += 1;
-        Ok(())
+        self.jacobi.analyze(p)
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
-        let Some(p) = &self.pattern else {
-            return Err(LinearError::Usage("factor before analyze".into()));
-        };
-        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)?;
+        self.jacobi.factor(values)?;
+        let JacobiSystem {
+            values, inv_diag, ..
+        } = &self.jacobi;
+        let p = self.jacobi.pattern()?;
         // Power iteration on J = I − D⁻¹A from a fixed, non-symmetric start vector.
         let n = p.n;
         let mut v: Vec<f64> = (0..n)
@@ -509,11 +516,11 @@ impl LinearSolver for ChebyshevJacobi {
         let mut av = vec![0.0; n];
         let mut lambda = 0.0;
         for _ in 0..60 {
-            p.mul(&self.values, &v, &mut av);
+            p.mul(values, &v, &mut av);
             let w: Vec<f64> = v
                 .iter()
                 .zip(&av)
-                .zip(&self.inv_diag)
+                .zip(inv_diag)
                 .map(|((vi, ai), d)| vi - d * ai)
                 .collect();
             let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -537,9 +544,10 @@ impl LinearSolver for ChebyshevJacobi {
     }
 
     fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
-        let Some(p) = &self.pattern else {
-            return Err(LinearError::Usage("solve before analyze".into()));
-        };
+        let JacobiSystem {
+            values, inv_diag, ..
+        } = &self.jacobi;
+        let p = self.jacobi.pattern()?;
         let n = p.n;
         let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         if bnorm == 0.0 {
@@ -551,7 +559,7 @@ impl LinearSolver for ChebyshevJacobi {
         let rho2 = self.rho * self.rho;
         let mut res = 1.0;
         for k in 0..self.max_iterations {
-            p.mul(&self.values, &x, &mut ax);
+            p.mul(values, &x, &mut ax);
             res = ax
                 .iter()
                 .zip(b.iter())
@@ -570,7 +578,7 @@ impl LinearSolver for ChebyshevJacobi {
                 _ => 4.0 / (4.0 - rho2 * omega),
             };
             for i in 0..n {
-                let jacobi = x[i] + self.inv_diag[i] * (b[i] - ax[i]);
+                let jacobi = x[i] + inv_diag[i] * (b[i] - ax[i]);
                 let next = omega * (jacobi - prev[i]) + prev[i];
                 prev[i] = x[i];
                 x[i] = next;
@@ -585,7 +593,7 @@ impl LinearSolver for ChebyshevJacobi {
     }
 
     fn analyses(&self) -> usize {
-        self.analyses
+        self.jacobi.analyses
     }
 }
 
