@@ -12,6 +12,7 @@ mod scene;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+
 use hinge_core::hinge::HingeFrames;
 use hinge_core::{Topology, TriMesh, grid, obj};
 
@@ -57,7 +58,30 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
+                let _ = e.print();
+                return ExitCode::SUCCESS;
+            }
+            // Usage errors: one line (clap's first line, without its "error: " prefix), non-zero exit.
+            let text = e.to_string();
+            let first = text
+                .lines()
+                .next()
+                .unwrap_or("invalid arguments")
+                .trim_start_matches("error: ");
+            eprintln!("hinge: {first} (see `hinge --help`)");
+            return ExitCode::from(2);
+        }
+    };
     let result = match cli.command {
         None => run::run(run::RunArgs {
             scene: "drape".into(),

@@ -239,6 +239,17 @@ fn bad_input_is_one_line_and_nonzero() {
         assert!(err.starts_with("hinge: "), "{err}");
         assert!(!err.contains("panicked"));
     }
+    // Usage errors from argument parsing are one line too.
+    for args in [
+        vec!["--frobnicate"],
+        vec!["eval", "--rest"],
+        vec!["run", "drape", "--frames", "many"],
+    ] {
+        let o = hinge(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    }
     let o = hinge(&["eval", "--list-energies"]);
     assert!(o.status.success());
     assert!(
