@@ -55,6 +55,19 @@ fn builtin_energies_match_num_dual() {
     println!("tan bending: {e:.3e}");
     assert!(e <= 1e-14);
     const { assert!(!DiscreteShells::D2_IS_ZERO && !DiscreteShells::USES_STEP) };
+    // The rest of the bending family (hinge-energies), declared with the same macro.
+    use hinge_energies::bending::{Bridson, ViscousDamping, Willmore};
+    for (name, e) in [
+        ("willmore", check(&Willmore { k: 0.8 }, -3.1, 3.1, 3)),
+        ("bridson", check(&Bridson { k: 1.2 }, -3.1, 3.1, 4)),
+        (
+            "viscous damping",
+            check(&ViscousDamping { kd: 0.4 }, -3.0, 3.0, 6),
+        ),
+    ] {
+        println!("{name}: {e:.3e}");
+        assert!(e <= 1e-14, "{name}: {e}");
+    }
 }
 
 /// Measured: the worst of 24 random expressions is printed with `--nocapture`; the bound is 1e-13.
