@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
-use hinge_core::grid::{unit_grid, wave};
+use hinge_core::grid::{SplitMix64, unit_grid, wave};
 use hinge_core::psi::handwritten::{self, Stiffness};
 use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities, TanBending};
 use hinge_energies::bending::ViscousDamping;
@@ -80,14 +80,8 @@ fn time_psi<P: HingePsi>(
 
 /// The ψ rows: macro-generated vs hand-written vs num-dual `Dual2` (of the macro's generic ψ), per energy.
 fn psi_rows(runs: usize) -> Vec<Row> {
-    let mut s = 0x5EEDu64;
-    let mut unit = move || {
-        s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = SplitMix64(0x5EED);
+    let mut unit = move || rng.unit();
     let samples: Vec<(HingeQuantities, f64)> = (0..PSI_SAMPLES)
         .map(|i| {
             let q = HingeQuantities {

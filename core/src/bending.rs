@@ -182,8 +182,6 @@ pub struct BendingModel<P: HingePsi> {
     state_vertices: Vec<[usize; 4]>,
     /// Per hinge: 10 block slots (00, 11, 22, 33, 10, 20, 30, 21, 31, 32).
     hinge_slots: Vec<[Slot; 10]>,
-    /// Hinge index of each edge (NONE on the boundary).
-    edge_hinge: Vec<u32>,
     partitions: Vec<Partition>,
     hessian_mode: HessianMode,
 }
@@ -243,15 +241,13 @@ impl<P: HingePsi> BendingModel<P> {
             .collect();
         let n = rest.n_vertices();
         let tris = topology.triangles();
-        let mut edge_hinge = vec![NONE; topology.edges().len()];
-        for (i, h) in topology.hinges().iter().enumerate() {
-            edge_hinge[h.edge] = i as u32;
-        }
+        // The hinge on each edge, as u32 (NONE on the boundary).
+        let edge_hinge = |e: usize| topology.hinge_of_edge(e).map_or(NONE, |h| h as u32);
         let tri_elements: Vec<u32> = (0..tris.len())
             .filter(|&t| {
                 topology.triangle_edges()[t]
                     .iter()
-                    .any(|&e| edge_hinge[e] != NONE)
+                    .any(|&e| edge_hinge(e) != NONE)
             })
             .map(|t| t as u32)
             .collect();
@@ -259,7 +255,7 @@ impl<P: HingePsi> BendingModel<P> {
         let mut state_order = Vec::with_capacity(topology.hinges().len());
         for &t in &tri_elements {
             for k in 0..3 {
-                let hid = edge_hinge[topology.triangle_edges()[t as usize][k]];
+                let hid = edge_hinge(topology.triangle_edges()[t as usize][k]);
                 if hid != NONE && bits[t as usize] >> k & 1 == 1 {
                     state_order.push(hid);
                 }
@@ -273,10 +269,11 @@ impl<P: HingePsi> BendingModel<P> {
             .iter()
             .map(|&t| {
                 topology.triangle_edges()[t as usize].map(|e| {
-                    if edge_hinge[e] == NONE {
+                    let h = edge_hinge(e);
+                    if h == NONE {
                         NONE
                     } else {
-                        state_of[edge_hinge[e] as usize]
+                        state_of[h as usize]
                     }
                 })
             })
@@ -298,7 +295,6 @@ impl<P: HingePsi> BendingModel<P> {
             state_vertices,
             tri_slots: Vec::new(),
             hinge_slots: Vec::new(),
-            edge_hinge,
             partitions: Vec::new(),
             hessian_mode: HessianMode::Exact,
         };
@@ -361,11 +357,12 @@ impl<P: HingePsi> BendingModel<P> {
         let topology = &self.topology;
         let tris = topology.triangles();
         let bits = topology.orientation_bits();
-        let edge_hinge = &self.edge_hinge;
+        let (tri_states, state_vertices) = (&self.tri_states, &self.state_vertices);
         self.tri_slots = self
             .tri_elements
             .iter()
-            .map(|&t| {
+            .zip(tri_states)
+            .map(|(&t, states)| {
                 let t = t as usize;
                 let v = tris[t];
                 let mut s = [NO_SLOT; 18];
@@ -378,9 +375,8 @@ impl<P: HingePsi> BendingModel<P> {
                     slot(v[2], v[0]),
                 ]);
                 for k in 0..3 {
-                    let hid = edge_hinge[topology.triangle_edges()[t][k]];
-                    if hid != NONE && bits[t] >> k & 1 == 1 {
-                        let hv = topology.hinges()[hid as usize].vertices;
+                    if states[k] != NONE && bits[t] >> k & 1 == 1 {
+                        let hv = state_vertices[states[k] as usize];
                         s[6 + 4 * k..10 + 4 * k].copy_from_slice(&[
                             slot(hv[3], hv[3]),
                             slot(hv[3], hv[0]),
@@ -435,28 +431,22 @@ impl<P: HingePsi> BendingModel<P> {
                 }
             })
             .collect();
-        let part_of = |v: usize| (v * count + count - 1) / n.max(1);
-        let owner = |v: usize| {
-            // The partition whose range holds v (ranges are p*n/count .. (p+1)*n/count).
-            let mut p = part_of(v).min(count - 1);
-            while parts_range(p, n, count).start > v {
-                p -= 1;
-            }
-            while parts_range(p, n, count).end <= v {
-                p += 1;
-            }
-            p
-        };
+        // The partition owning each vertex.
+        let mut owner_of = vec![0usize; n];
+        for (p, part) in parts.iter().enumerate() {
+            owner_of[part.vertices.clone()].fill(p);
+        }
+        let owner = |v: usize| owner_of[v];
         let tris = self.topology.triangles();
         for (e, &t) in self.tri_elements.iter().enumerate() {
             let mut owners: Vec<usize> = Vec::with_capacity(6);
             let v = tris[t as usize];
             owners.extend(v.iter().map(|&x| owner(x)));
-            for k in 0..3 {
-                let hid = self.edge_hinge[self.topology.triangle_edges()[t as usize][k]];
-                if hid != NONE {
-                    owners.push(owner(self.topology.hinges()[hid as usize].vertices[3]));
-                    owners.push(owner(self.topology.hinges()[hid as usize].vertices[0]));
+            for &st in &self.tri_states[e] {
+                if st != NONE {
+                    let hv = self.state_vertices[st as usize];
+                    owners.push(owner(hv[3]));
+                    owners.push(owner(hv[0]));
                 }
             }
             owners.sort_unstable();
@@ -852,10 +842,6 @@ pub struct Scratch {
 
 fn slice_of(s: &mut [f64], a: usize, b: usize) -> &mut [f64] {
     if s.is_empty() { s } else { &mut s[a..b] }
-}
-
-fn parts_range(p: usize, n: usize, count: usize) -> std::ops::Range<usize> {
-    p * n / count..(p + 1) * n / count
 }
 
 struct Ctx<'a, P: HingePsi> {

@@ -170,10 +170,7 @@ pub fn validate_triangles(n_vertices: usize, triangles: &[[usize; 3]]) -> Result
 }
 
 /// Whether a triangle's smallest altitude is below [`DEGENERACY_TOLERANCE`] times its longest edge.
+/// The same test as [`crate::geometry::TriangleFrame::new`], so a mesh accepted here never fails there at rest.
 pub fn is_degenerate(p: &[Vector3<f64>; 3]) -> bool {
-    let e = [p[2] - p[1], p[0] - p[2], p[1] - p[0]];
-    let lmax2 = e.iter().map(|v| v.norm_squared()).fold(0.0_f64, f64::max);
-    let double_area = e[1].cross(&e[2]).norm();
-    // The negated comparison also catches NaN (a non-finite input).
-    !(double_area > DEGENERACY_TOLERANCE * lmax2)
+    crate::geometry::TriangleFrame::new(&p[0], &p[1], &p[2]).is_err()
 }

@@ -8,50 +8,7 @@ use nalgebra::{Rotation3, Vector3};
 /// Unit roundoff of f64, 2⁻⁵³: errors are reported in multiples of it ("ulps").
 pub const UNIT_ROUNDOFF: f64 = f64::EPSILON / 2.0;
 
-/// SplitMix64, the generator of the shared reference data (shared/data/README.md).
-#[derive(Debug, Clone)]
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in [-1, 1), exactly as the reference data's jitter.
-    pub fn symmetric(&mut self) -> f64 {
-        self.unit() * 2.0 - 1.0
-    }
-
-    /// Uniform in [lo, hi).
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-}
-
-/// The jittered wave deformation of the shared reference data for an `n × n` unit grid.
-pub fn reference_jitter(rest: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    let mut rng = SplitMix64(0x5EED);
-    rest.iter()
-        .map(|p| {
-            let (ux, uy, uz) = (rng.symmetric(), rng.symmetric(), rng.symmetric());
-            Vector3::new(
-                p.x + 1e-3 * ux,
-                p.y + 1e-3 * uy,
-                0.1 * (3.0 * p.x).sin() * (2.0 * p.y).cos() + 1e-3 * uz,
-            )
-        })
-        .collect()
-}
+pub use hinge_core::grid::{SplitMix64, reference_jitter};
 
 /// A random non-degenerate stencil whose hinge angle is `theta` (up to rounding), in a random rigid frame.
 ///

@@ -285,20 +285,38 @@ fn boundary_edges_contribute_nothing_and_tiny_meshes_work() {
         assert!(rel_error(&o.hessian, &r.hessian) < 1e-14);
         assert!(rel_error(&o.gradient, &r.gradient) < 1e-14);
     }
-    // A third triangle hanging off a boundary edge only adds its own hinge: moving a vertex that belongs to
-    // no hinge's stencil changes nothing.
-    let five = vec![
-        quad[0],
-        quad[1],
-        quad[2],
-        quad[3],
-        Vector3::new(2.0, 0.5, 0.0),
-    ];
+    // A vertex in no hinge stencil (here: in no triangle at all) gets no gradient, no Hessian coupling, and
+    // moving it changes nothing.
+    let mut five = quad.clone();
+    five.push(Vector3::new(2.0, 0.5, 0.0));
     let m3 = BendingModel::new(
         &TriMesh::new(five.clone(), vec![[0, 1, 2], [0, 2, 3]]).unwrap(),
         ds(),
-    );
-    assert!(m3.is_ok());
+    )
+    .unwrap();
+    let mut bent = def.clone();
+    bent.push(five[4]);
+    let a = m3
+        .evaluate(
+            &bent,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    bent[4] += Vector3::new(0.3, -0.2, 0.7);
+    let b = m3
+        .evaluate(
+            &bent,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    assert_eq!(a, b);
+    assert_eq!(&a.gradient[12..15], &[0.0; 3]);
+    assert_eq!(m3.pattern().find(4, 0), None);
+    assert_eq!(a.energy, r.energy);
 }
 
 #[test]
