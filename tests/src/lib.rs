@@ -106,3 +106,25 @@ pub fn sym_dense(col_ptr: &[usize], row_idx: &[usize], values: &[f64]) -> Vec<f6
     }
     d
 }
+
+/// Central finite differences of a whole-mesh energy: the gradient from energy values and the dense
+/// (row-major `3n × 3n`) Hessian from gradients, step `h`. `eval` returns energy and gradient at a state.
+pub fn fd_energy_derivatives(
+    x: &[Vector3<f64>],
+    h: f64,
+    mut eval: impl FnMut(&[Vector3<f64>]) -> (f64, Vec<f64>),
+) -> (Vec<f64>, Vec<f64>) {
+    let n = 3 * x.len();
+    let (mut g, mut hess) = (vec![0.0; n], vec![0.0; n * n]);
+    for i in 0..n {
+        let (mut xp, mut xm) = (x.to_vec(), x.to_vec());
+        xp[i / 3][i % 3] += h;
+        xm[i / 3][i % 3] -= h;
+        let ((ep, gp), (em, gm)) = (eval(&xp), eval(&xm));
+        g[i] = (ep - em) / (2.0 * h);
+        for j in 0..n {
+            hess[i * n + j] = (gp[j] - gm[j]) / (2.0 * h);
+        }
+    }
+    (g, hess)
+}

@@ -157,43 +157,22 @@ fn whole_mesh_gradient_and_hessian_match_finite_differences() {
             Parallelism::Sequential,
         )
         .unwrap();
-    let n = 3 * def.len();
-    let h = 1e-6;
-    let at = |i: usize, d: f64| {
-        let mut y = def.clone();
-        y[i / 3][i % 3] += d;
-        y
-    };
-    let mut fd_g = vec![0.0; n];
     let dense = sym_dense(
         model.pattern().col_ptr(),
         model.pattern().row_idx(),
         &e.hessian,
     );
-    let mut fd_h = vec![0.0; n * n];
-    for i in 0..n {
-        let (p, m) = (at(i, h), at(i, -h));
-        let ep = model
+    let (fd_g, fd_h) = fd_energy_derivatives(&def, 1e-6, |y| {
+        let r = model
             .evaluate(
-                &p,
+                y,
                 Request::GRADIENT,
                 Method::Refactored,
                 Parallelism::Sequential,
             )
             .unwrap();
-        let em = model
-            .evaluate(
-                &m,
-                Request::GRADIENT,
-                Method::Refactored,
-                Parallelism::Sequential,
-            )
-            .unwrap();
-        fd_g[i] = (ep.energy - em.energy) / (2.0 * h);
-        for j in 0..n {
-            fd_h[i * n + j] = (ep.gradient[j] - em.gradient[j]) / (2.0 * h);
-        }
-    }
+        (r.energy, r.gradient)
+    });
     let eg = rel_error(&e.gradient, &fd_g);
     let eh = rel_error(&dense, &fd_h);
     println!("whole mesh: gradient vs FD {eg:.3e}, hessian vs FD {eh:.3e}");

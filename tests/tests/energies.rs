@@ -138,25 +138,12 @@ fn every_energy_matches_finite_differences() {
         let ev = sys
             .evaluate(&def, Request::ALL, Parallelism::Sequential)
             .unwrap();
-        let n = 3 * def.len();
-        let h = 1e-6;
-        let (mut fd_g, mut fd_h) = (vec![0.0; n], vec![0.0; n * n]);
-        for i in 0..n {
-            let mut xp = def.clone();
-            let mut xm = def.clone();
-            xp[i / 3][i % 3] += h;
-            xm[i / 3][i % 3] -= h;
-            let ep = sys
-                .evaluate(&xp, Request::GRADIENT, Parallelism::Sequential)
+        let (fd_g, fd_h) = fd_energy_derivatives(&def, 1e-6, |y| {
+            let r = sys
+                .evaluate(y, Request::GRADIENT, Parallelism::Sequential)
                 .unwrap();
-            let em = sys
-                .evaluate(&xm, Request::GRADIENT, Parallelism::Sequential)
-                .unwrap();
-            fd_g[i] = (ep.energy - em.energy) / (2.0 * h);
-            for j in 0..n {
-                fd_h[i * n + j] = (ep.gradient[j] - em.gradient[j]) / (2.0 * h);
-            }
-        }
+            (r.energy, r.gradient)
+        });
         let p = sys.pattern();
         let dense = sym_dense(p.col_ptr(), p.row_idx(), &ev.hessian);
         let (eg, eh) = (rel_error(&ev.gradient, &fd_g), rel_error(&dense, &fd_h));
