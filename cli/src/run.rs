@@ -16,9 +16,11 @@ use hinge_core::nalgebra::Vector3;
 use hinge_core::obj::write_obj;
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
-    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
+    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, plate_consistent_stiffness,
+    stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::pins::Pins;
@@ -27,7 +29,7 @@ use hinge_solver::linear::{
 };
 
 use crate::scene::Scene;
-use hinge_solver::newton::{ImplicitEuler, NewtonParams};
+use hinge_solver::newton::{ImplicitEuler, Newton, NewtonParams};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -50,6 +52,10 @@ pub struct RunArgs {
     /// Do not write OBJ frames (summary only).
     #[arg(long)]
     pub no_frames: bool,
+    /// Solve for the static equilibrium (Newton on the potential energy, no inertia or damping) instead of
+    /// stepping frames; writes one frame, `static.obj`.
+    #[arg(long = "static")]
+    pub statics: bool,
 }
 
 /// What a run produced.
@@ -73,6 +79,176 @@ pub struct RunSummary {
     pub min_clearance: Option<f64>,
     /// Vertex count.
     pub n_vertices: usize,
+    /// Mean drop (rest z − z) of the vertices at the largest rest x: a cantilever's tip deflection.
+    pub far_end_drop: f64,
+    /// Largest vertex speed at the end (0 for a static solve): how close a damped run is to equilibrium.
+    pub max_speed: f64,
+}
+
+/// The system a scene simulates, with its masses, pins, solver and Newton parameters.
+pub struct Built {
+    /// Bending + membrane + gravity + contact.
+    pub system: System,
+    /// Lumped masses.
+    pub masses: Vec<f64>,
+    /// Pinned vertices.
+    pub pins: Pins,
+    /// The linear solver.
+    pub solver: Box<dyn LinearSolver>,
+    /// Newton parameters.
+    pub params: NewtonParams,
+    /// Sphere obstacles (centre, radius), for the clearance report.
+    pub spheres: Vec<(Vector3<f64>, f64)>,
+}
+
+/// Builds the energies of `scene` on `rest` (with the scene's viscous damping when `damped`).
+///
+/// # Errors
+/// A one-line message naming the energy or key at fault.
+pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, String> {
+    let n = rest.n_vertices();
+    let m = &scene.material;
+    let k = if scene.bending.calibration == "plate" {
+        plate_consistent_stiffness(m.young, m.thickness, m.poisson)
+    } else {
+        stiffness_from_material(m.young, m.thickness, m.poisson)
+    };
+    let kd = if damped { scene.bending.damping } else { 0.0 };
+    let bending = match scene.bending.energy.as_str() {
+        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
+        "willmore" => bending_term(rest, Willmore { k }, kd)?,
+        "bridson" => bending_term(rest, Bridson { k }, kd)?,
+        _ => bending_term(rest, TanBending { k }, kd)?,
+    };
+    let masses = lumped_masses(rest, m.density);
+    let mut terms: Vec<Box<dyn Energy>> = vec![
+        bending,
+        Box::new(
+            StvkMembrane::new(rest, m.young, m.poisson, m.thickness).map_err(|e| e.to_string())?,
+        ),
+        Box::new(
+            Gravity::new(masses.clone(), Vector3::from(scene.gravity))
+                .map_err(|e| e.to_string())?,
+        ),
+    ];
+    if damped && scene.drag > 0.0 {
+        terms.push(Box::new(
+            Drag::new(masses.clone(), scene.drag).map_err(|e| format!("drag: {e}"))?,
+        ));
+    }
+    let mut spheres = Vec::new();
+    for (i, o) in scene.obstacles.iter().enumerate() {
+        let obstacle = match (o.center, o.radius, o.point, o.normal) {
+            (Some(c), Some(r), _, _) => {
+                spheres.push((Vector3::from(c), r));
+                Obstacle::Sphere {
+                    center: Vector3::from(c),
+                    radius: r,
+                }
+            }
+            (_, _, Some(p), Some(nrm)) => Obstacle::Plane {
+                point: Vector3::from(p),
+                normal: Vector3::from(nrm),
+            },
+            _ => return Err(format!("obstacles[{i}]: incomplete")),
+        };
+        terms.push(Box::new(
+            Contact::new(n, obstacle, o.stiffness, o.margin)
+                .map_err(|e| format!("obstacles[{i}]: {e}"))?,
+        ));
+    }
+    let pins = Pins::new(n, scene.pinned(rest)?).map_err(|e| format!("pins: {e}"))?;
+    let system = System::new(n, terms).map_err(|e| e.to_string())?;
+    let params = NewtonParams {
+        gradient_tolerance: scene.solver.gradient_tolerance,
+        step_tolerance: 1e-9,
+        max_iterations: scene.solver.max_iterations,
+        ..NewtonParams::default()
+    };
+    let solver: Box<dyn LinearSolver> = match scene.solver.backend.as_str() {
+        "faer-lu" => Box::new(FaerLu::default()),
+        "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
+        "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
+        "dense" => Box::new(Dense::default()),
+        _ => default_solver(),
+    };
+    Ok(Built {
+        system,
+        masses,
+        pins,
+        solver,
+        params,
+        spheres,
+    })
+}
+
+fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
+    let r = rest.positions();
+    let xmax = r.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max);
+    let end: Vec<usize> = (0..r.len()).filter(|&v| r[v].x >= xmax).collect();
+    end.iter().map(|&v| r[v].z - x[v].z).sum::<f64>() / end.len().max(1) as f64
+}
+
+fn min_clearance(spheres: &[(Vector3<f64>, f64)], x: &[Vector3<f64>]) -> Option<f64> {
+    spheres
+        .iter()
+        .map(|(c, r)| {
+            x.iter()
+                .map(|p| (p - c).norm() - r)
+                .fold(f64::INFINITY, f64::min)
+        })
+        .reduce(f64::min)
+}
+
+/// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
+/// `static.obj` to `out` when given.
+///
+/// # Errors
+/// A one-line message with the solver's diagnostics.
+pub fn equilibrium(
+    scene: &Scene,
+    rest: &TriMesh,
+    out: Option<&std::path::Path>,
+) -> Result<RunSummary, String> {
+    let start = Instant::now();
+    let Built {
+        mut system,
+        pins,
+        solver,
+        params,
+        spheres,
+        ..
+    } = build(scene, rest, false)?;
+    let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
+    let mut x = rest.positions().to_vec();
+    let stats = newton
+        .minimize(&mut system, &mut x, None)
+        .map_err(|e| format!("static solve: {e}"))?;
+    let mut summary = RunSummary {
+        frames: 0,
+        newton_iterations: stats.iterations,
+        line_search_steps: stats.line_search_steps,
+        bending_seconds: 0.0,
+        other_energy_seconds: 0.0,
+        linear_solve_seconds: stats.factor_seconds + stats.solve_seconds,
+        total_seconds: 0.0,
+        min_clearance: min_clearance(&spheres, &x),
+        n_vertices: rest.n_vertices(),
+        far_end_drop: far_end_drop(rest, &x),
+        max_speed: 0.0,
+    };
+    for (name, sec) in system.take_timings() {
+        if name == "bending" {
+            summary.bending_seconds += sec;
+        } else {
+            summary.other_energy_seconds += sec;
+        }
+    }
+    if let Some(dir) = out {
+        write_obj(dir.join("static.obj"), &x, rest.triangles()).map_err(|e| e.to_string())?;
+    }
+    summary.total_seconds = start.elapsed().as_secs_f64();
+    Ok(summary)
 }
 
 fn bending_term<P: HingePsi + Send + 'static>(
@@ -111,66 +287,14 @@ pub fn simulate(
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
     let n = rest.n_vertices();
-    let m = &scene.material;
-    let k = stiffness_from_material(m.young, m.thickness, m.poisson);
-    let kd = scene.bending.damping;
-    let bending = match scene.bending.energy.as_str() {
-        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
-        "willmore" => bending_term(rest, Willmore { k }, kd)?,
-        "bridson" => bending_term(rest, Bridson { k }, kd)?,
-        _ => bending_term(rest, TanBending { k }, kd)?,
-    };
-    let masses = lumped_masses(rest, m.density);
-    let mut terms: Vec<Box<dyn Energy>> = vec![
-        bending,
-        Box::new(
-            StvkMembrane::new(rest, m.young, m.poisson, m.thickness).map_err(|e| e.to_string())?,
-        ),
-        Box::new(
-            Gravity::new(masses.clone(), Vector3::from(scene.gravity))
-                .map_err(|e| e.to_string())?,
-        ),
-    ];
-    let mut spheres = Vec::new();
-    for (i, o) in scene.obstacles.iter().enumerate() {
-        let obstacle = match (o.center, o.radius, o.point, o.normal) {
-            (Some(c), Some(r), _, _) => {
-                spheres.push((Vector3::from(c), r));
-                Obstacle::Sphere {
-                    center: Vector3::from(c),
-                    radius: r,
-                }
-            }
-            (_, _, Some(p), Some(nrm)) => Obstacle::Plane {
-                point: Vector3::from(p),
-                normal: Vector3::from(nrm),
-            },
-            _ => return Err(format!("obstacles[{i}]: incomplete")),
-        };
-        terms.push(Box::new(
-            Contact::new(n, obstacle, o.stiffness, o.margin)
-                .map_err(|e| format!("obstacles[{i}]: {e}"))?,
-        ));
-    }
-    let mut pinned = scene.pins.vertices.clone();
-    if let Some(xmax) = scene.pins.x_at_most {
-        pinned.extend((0..n).filter(|&v| rest.positions()[v].x <= xmax));
-    }
-    let pins = Pins::new(n, pinned).map_err(|e| format!("pins: {e}"))?;
-    let mut system = System::new(n, terms).map_err(|e| e.to_string())?;
-    let params = NewtonParams {
-        gradient_tolerance: scene.solver.gradient_tolerance,
-        step_tolerance: 1e-9,
-        max_iterations: scene.solver.max_iterations,
-        ..NewtonParams::default()
-    };
-    let solver: Box<dyn LinearSolver> = match scene.solver.backend.as_str() {
-        "faer-lu" => Box::new(FaerLu::default()),
-        "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
-        "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
-        "dense" => Box::new(Dense::default()),
-        _ => default_solver(),
-    };
+    let Built {
+        mut system,
+        masses,
+        pins,
+        solver,
+        params,
+        spheres,
+    } = build(scene, rest, true)?;
     let mut stepper = ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
         .map_err(|e| e.to_string())?;
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
@@ -184,6 +308,8 @@ pub fn simulate(
         total_seconds: 0.0,
         min_clearance: None,
         n_vertices: n,
+        far_end_drop: 0.0,
+        max_speed: 0.0,
     };
     for frame in 0..scene.frames {
         let t = Instant::now();
@@ -210,14 +336,9 @@ pub fn simulate(
         }
         progress(frame, stats.iterations, t.elapsed().as_secs_f64());
     }
-    summary.min_clearance = spheres
-        .iter()
-        .map(|(c, r)| {
-            x.iter()
-                .map(|p| (p - c).norm() - r)
-                .fold(f64::INFINITY, f64::min)
-        })
-        .reduce(f64::min);
+    summary.min_clearance = min_clearance(&spheres, &x);
+    summary.far_end_drop = far_end_drop(rest, &x);
+    summary.max_speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
 }
@@ -261,16 +382,21 @@ pub fn run(args: RunArgs) -> Result<(), String> {
     );
     let frames_dir = (!args.no_frames).then_some(out.as_path());
     let frames = scene.frames;
-    let summary = pool.install(|| {
-        simulate(&scene, &rest, frames_dir, |frame, iterations, seconds| {
-            println!(
-                "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
-                frame + 1,
-                seconds * 1e3
-            );
-            let _ = std::io::stdout().flush();
-        })
-    })?;
+    let summary = if args.statics {
+        println!("static equilibrium (Newton on the potential energy)");
+        pool.install(|| equilibrium(&scene, &rest, frames_dir))?
+    } else {
+        pool.install(|| {
+            simulate(&scene, &rest, frames_dir, |frame, iterations, seconds| {
+                println!(
+                    "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
+                    frame + 1,
+                    seconds * 1e3
+                );
+                let _ = std::io::stdout().flush();
+            })
+        })?
+    };
     let json = serde_json::json!({
         "scene": scene.name,
         "frames": summary.frames,
@@ -284,6 +410,9 @@ pub fn run(args: RunArgs) -> Result<(), String> {
             "total": summary.total_seconds,
         },
         "min_clearance_to_sphere": summary.min_clearance,
+        "far_end_drop": summary.far_end_drop,
+        "max_speed": summary.max_speed,
+        "static": args.statics,
     });
     let path = out.join("summary.json");
     std::fs::write(
@@ -303,6 +432,10 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         summary.min_clearance.map_or(String::new(), |c| format!(
             "; min clearance to the sphere {c:.2e} m"
         ))
+    );
+    println!(
+        "far end dropped {:.4e} m; largest speed {:.2e} m/s",
+        summary.far_end_drop, summary.max_speed
     );
     Ok(())
 }

@@ -10,7 +10,14 @@ use hinge_core::nalgebra::Vector3;
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
-pub const BUILT_IN: [(&str, &str); 1] = [("drape", include_str!("../scenes/drape.toml"))];
+pub const BUILT_IN: [(&str, &str); 6] = [
+    ("drape", include_str!("../scenes/drape.toml")),
+    ("beam1", include_str!("../scenes/beam1.toml")),
+    ("beam2", include_str!("../scenes/beam2.toml")),
+    ("beam3", include_str!("../scenes/beam3.toml")),
+    ("beam4", include_str!("../scenes/beam4.toml")),
+    ("beam5", include_str!("../scenes/beam5.toml")),
+];
 
 /// A scene.
 #[derive(Debug, Clone, Deserialize)]
@@ -32,6 +39,9 @@ pub struct Scene {
     /// Gravity (m/s²).
     #[serde(default = "default_gravity")]
     pub gravity: [f64; 3],
+    /// Mass-proportional damping ("air drag") rate c in 1/s: force −c m v (0: none).
+    #[serde(default)]
+    pub drag: f64,
     /// Analytic obstacles.
     #[serde(default)]
     pub obstacles: Vec<ObstacleSpec>,
@@ -53,6 +63,9 @@ fn default_gravity() -> [f64; 3] {
 pub struct MeshSpec {
     /// Grid cells along x and y.
     pub cells: Option<[usize; 2]>,
+    /// Named grid resolutions (cells along x and y) that `--resolution 1, 2, …` selects; without them
+    /// `--resolution N` sets N cells along x.
+    pub resolutions: Option<Vec<[usize; 2]>>,
     /// Grid size (m).
     #[serde(default = "unit_size")]
     pub size: [f64; 2],
@@ -97,6 +110,15 @@ pub struct BendingSpec {
     /// Viscous damping coefficient k_d (0: none).
     #[serde(default)]
     pub damping: f64,
+    /// How the stiffness k follows from the material: `eq11` (the paper's Eq. 11, `Y h³/(24(1 − ν²))`) or
+    /// `plate` (Eq. 11 / 3, which reproduces the plate's energy in cylindrical bending; see
+    /// `hinge_energies::bending::plate_consistent_stiffness`).
+    #[serde(default = "default_calibration")]
+    pub calibration: String,
+}
+
+fn default_calibration() -> String {
+    "eq11".into()
 }
 
 impl Default for BendingSpec {
@@ -104,6 +126,7 @@ impl Default for BendingSpec {
         Self {
             energy: "tan-bending".into(),
             damping: 0.0,
+            calibration: default_calibration(),
         }
     }
 }
@@ -138,6 +161,8 @@ pub struct PinSpec {
     pub vertices: Vec<usize>,
     /// Pin every vertex with rest x ≤ this.
     pub x_at_most: Option<f64>,
+    /// Grid scenes: pin the first N vertex columns (x = 0, h_x, …): two columns clamp the edge.
+    pub clamp_columns: Option<usize>,
 }
 
 /// Newton and linear-solver settings.
@@ -234,6 +259,9 @@ impl Scene {
     /// Value checks serde cannot express, each naming the key path.
     fn validate(&self) -> Result<(), String> {
         positive("dt", self.dt)?;
+        if !(self.drag >= 0.0 && self.drag.is_finite()) {
+            return Err(format!("drag: must be non-negative, got {}", self.drag));
+        }
         positive("material.young", self.material.young)?;
         positive("material.thickness", self.material.thickness)?;
         positive("material.density", self.material.density)?;
@@ -248,6 +276,31 @@ impl Scene {
                 "bending.damping: must be non-negative, got {}",
                 self.bending.damping
             ));
+        }
+        if !["eq11", "plate"].contains(&self.bending.calibration.as_str()) {
+            return Err(format!(
+                "bending.calibration: unknown `{}` (eq11, plate)",
+                self.bending.calibration
+            ));
+        }
+        if let Some(levels) = &self.mesh.resolutions {
+            if levels.is_empty() || levels.iter().any(|c| c[0] == 0 || c[1] == 0) {
+                return Err(
+                    "mesh.resolutions: give at least one [cells_x, cells_y], each at least 1"
+                        .into(),
+                );
+            }
+            if self.mesh.obj.is_some() {
+                return Err("mesh.resolutions: applies to grids only".into());
+            }
+        }
+        if let Some(c) = self.pins.clamp_columns {
+            if self.mesh.obj.is_some() {
+                return Err("pins.clamp_columns: applies to grids only".into());
+            }
+            if c == 0 {
+                return Err("pins.clamp_columns: must be at least 1".into());
+            }
         }
         if !["discrete-shells", "tan-bending", "willmore", "bridson"]
             .contains(&self.bending.energy.as_str())
@@ -309,11 +362,30 @@ impl Scene {
         Ok(())
     }
 
-    /// Scales a grid's cells so that it has `cells_x` cells along x (y scaled alike).
+    /// Scales a grid's cells so that it has `cells_x` cells along x (y scaled alike), or, for scenes that
+    /// list `mesh.resolutions`, selects entry `cells_x` (1-based).
     pub fn set_resolution(&mut self, cells_x: usize) -> Result<(), String> {
         let Some(c) = self.mesh.cells.as_mut() else {
             return Err("--resolution applies to grid scenes only".into());
         };
+        if let Some(levels) = &self.mesh.resolutions {
+            let counts: Vec<String> = levels
+                .iter()
+                .enumerate()
+                .map(|(i, l)| format!("{} = {} vertices", i + 1, (l[0] + 1) * (l[1] + 1)))
+                .collect();
+            return match cells_x.checked_sub(1).and_then(|i| levels.get(i)) {
+                Some(level) => {
+                    *c = *level;
+                    Ok(())
+                }
+                None => Err(format!(
+                    "--resolution {cells_x}: scene `{}` has resolutions {}",
+                    self.name,
+                    counts.join(", ")
+                )),
+            };
+        }
         if cells_x < 2 {
             return Err("--resolution must be at least 2".into());
         }
@@ -322,6 +394,29 @@ impl Scene {
             .max(1.0) as usize;
         *c = [cells_x, y];
         Ok(())
+    }
+
+    /// The pinned vertices of `rest` (explicit, `x_at_most`, `clamp_columns`), sorted, without repeats.
+    ///
+    /// # Errors
+    /// `clamp_columns` wider than the grid.
+    pub fn pinned(&self, rest: &TriMesh) -> Result<Vec<usize>, String> {
+        let mut pinned = self.pins.vertices.clone();
+        if let Some(xmax) = self.pins.x_at_most {
+            pinned.extend((0..rest.n_vertices()).filter(|&v| rest.positions()[v].x <= xmax));
+        }
+        if let (Some(cols), Some(cells)) = (self.pins.clamp_columns, self.mesh.cells) {
+            if cols > cells[0] {
+                return Err(format!(
+                    "pins.clamp_columns: {cols} columns, but the grid has {} vertex columns",
+                    cells[0] + 1
+                ));
+            }
+            pinned.extend((0..rest.n_vertices()).filter(|v| v % (cells[0] + 1) < cols));
+        }
+        pinned.sort_unstable();
+        pinned.dedup();
+        Ok(pinned)
     }
 
     /// The rest mesh.

@@ -309,7 +309,11 @@ fn scenes_are_listed_shown_and_validated() {
     let dir = tmp("scenes");
     let list = hinge(&["scenes"]);
     assert!(list.status.success());
-    assert_eq!(String::from_utf8_lossy(&list.stdout).trim(), "drape");
+    let names = String::from_utf8_lossy(&list.stdout).to_string();
+    assert_eq!(
+        names.split_whitespace().collect::<Vec<_>>(),
+        ["drape", "beam1", "beam2", "beam3", "beam4", "beam5"]
+    );
     // `show` prints a scene file that runs as is.
     let shown = hinge(&["scenes", "show", "drape"]);
     assert!(shown.status.success());
@@ -373,6 +377,8 @@ fn scenes_are_listed_shown_and_validated() {
         vec!["run", "/nonexistent/scene.toml"],
         vec!["scenes", "show", "nosuch"],
         vec!["run", "drape", "--resolution", "1"],
+        vec!["run", "beam1", "--resolution", "4"],
+        vec!["run", "beam1", "--resolution", "0"],
     ] {
         let o = hinge(&args);
         assert!(!o.status.success(), "{args:?}");
@@ -382,6 +388,88 @@ fn scenes_are_listed_shown_and_validated() {
                 .lines()
                 .count(),
             1
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// `summary.json` of `hinge run ARGS --out DIR --no-frames`.
+fn run_summary(dir: &std::path::Path, args: &[&str]) -> serde_json::Value {
+    let mut all = vec!["run"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", dir.to_str().unwrap(), "--no-frames"]);
+    let o = hinge(&all);
+    assert!(
+        o.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+/// Linear cantilever theory for a plate strip of thickness h clamped at one end under its own weight
+/// (cylindrical bending): tip deflection w = q L⁴ / (8 D), with q = ρ_A g (weight per area) and
+/// D = Y h³ / (12 (1 − ν²)) the flexural rigidity. The scene clamps two vertex columns, so the free length is
+/// L = 0.3 m − h_x.
+fn plate_tip_deflection(young: f64, h: f64, nu: f64, mass_per_area: f64, cells_x: usize) -> f64 {
+    let d = young * h.powi(3) / (12.0 * (1.0 - nu * nu));
+    let l = 0.3 - 0.3 / cells_x as f64;
+    mass_per_area * 9.81 * l.powi(4) / (8.0 * d)
+}
+
+#[test]
+fn beams_run_settle_and_match_plate_theory() {
+    let dir = tmp("beams");
+    // Every beam runs a few frames at the lowest resolution; statics: tip deflection decreases with stiffness.
+    let mut drops = Vec::new();
+    for b in 1..=5 {
+        let name = format!("beam{b}");
+        let s = run_summary(&dir, &[&name, "--frames", "3"]);
+        assert_eq!(s["frames"], 3);
+        assert_eq!(s["n_vertices"], 366);
+        let s = run_summary(&dir, &[&name, "--static"]);
+        drops.push(s["far_end_drop"].as_f64().unwrap());
+    }
+    println!("static tip deflections beam1..5: {drops:?}");
+    assert!(drops.windows(2).all(|w| w[0] > w[1]), "{drops:?}");
+    // The soft beams hang (drop close to the 0.3 m length); the stiff ones barely bend.
+    assert!(drops[0] > 0.25 && drops[4] < 0.01, "{drops:?}");
+    // beam5 (aluminium, Y = 70 GPa, h = 2 mm, ν = 0.3, 5.4 kg/m²) against the plate formula, at the three
+    // resolutions (366, 790, 1372 vertices).
+    for (level, cells_x, n) in [("1", 60, 366), ("2", 78, 790), ("3", 97, 1372)] {
+        let s = run_summary(&dir, &["beam5", "--static", "--resolution", level]);
+        assert_eq!(s["n_vertices"], n);
+        let w = s["far_end_drop"].as_f64().unwrap();
+        let theory = plate_tip_deflection(7e10, 2e-3, 0.3, 5.4, cells_x);
+        println!(
+            "beam5 at {n} vertices: tip {w:.4e} m, plate theory {theory:.4e} m, ratio {:.3}",
+            w / theory
+        );
+        assert!((w / theory - 1.0).abs() < 0.10, "{w} vs {theory}");
+    }
+    // beam4 (4% of its length: still nearly linear) too, at the finest resolution.
+    let s = run_summary(&dir, &["beam4", "--static", "--resolution", "3"]);
+    let (w, theory) = (
+        s["far_end_drop"].as_f64().unwrap(),
+        plate_tip_deflection(2.4e9, 2e-3, 0.3, 2.4, 97),
+    );
+    println!("beam4 at 1372 vertices: tip {w:.4e} m, plate theory {theory:.4e} m");
+    assert!((w / theory - 1.0).abs() < 0.10, "{w} vs {theory}");
+    // The damped simulation comes to rest at the static equilibrium.
+    for name in ["beam5", "beam1"] {
+        let dynamic = run_summary(&dir, &[name]);
+        let stat = run_summary(&dir, &[name, "--static"]);
+        let (wd, ws) = (
+            dynamic["far_end_drop"].as_f64().unwrap(),
+            stat["far_end_drop"].as_f64().unwrap(),
+        );
+        let speed = dynamic["max_speed"].as_f64().unwrap();
+        println!(
+            "{name}: damped run ends at {wd:.5e} m (static {ws:.5e} m), largest speed {speed:.1e} m/s"
+        );
+        assert!(
+            (wd / ws - 1.0).abs() < 0.01 && speed < 0.01,
+            "{name}: {wd} {ws} {speed}"
         );
     }
     std::fs::remove_dir_all(dir).unwrap();

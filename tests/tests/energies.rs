@@ -9,7 +9,8 @@ use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::{Rotation3, Vector3};
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
-    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
+    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, plate_consistent_stiffness,
+    stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::gravity::{Gravity, lumped_masses};
@@ -575,6 +576,61 @@ mod autodiff_oracle {
     }
 
     #[test]
+    fn drag_matches_num_dual_and_finite_differences() {
+        use hinge_energies::drag::Drag;
+        let masses = vec![0.3, 0.5, 0.2];
+        let x_hat = vec![
+            Vector3::new(0.0, 0.1, 0.0),
+            Vector3::new(1.0, 0.0, 0.2),
+            Vector3::new(0.2, 0.9, -0.1),
+        ];
+        let def = vec![
+            Vector3::new(0.05, -0.02, 0.1),
+            Vector3::new(1.1, 0.2, -0.05),
+            Vector3::new(0.1, 1.0, 0.2),
+        ];
+        let (rate, dt) = (2.5, 0.02);
+        let mut drag = Drag::new(masses.clone(), rate).unwrap();
+        // Before a step is known the energy is zero; bad steps are typed errors.
+        let mut probe = System::new(3, vec![Box::new(drag.clone())]).unwrap();
+        let r = probe
+            .evaluate(&def, Request::ALL, Parallelism::Sequential)
+            .unwrap();
+        assert_eq!(r.energy, 0.0);
+        assert!(drag.begin_step(&x_hat, 0.0).is_err());
+        assert!(drag.begin_step(&x_hat[..2], dt).is_err());
+        assert!(Drag::new(vec![1.0, f64::NAN], 1.0).is_err());
+        assert!(Drag::new(vec![1.0], -1.0).is_err());
+        drag.begin_step(&x_hat, dt).unwrap();
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<9>, 9>| {
+                let s = v.as_slice();
+                let mut e = Dual2SVec64::<9>::from(0.0);
+                for i in 0..3 {
+                    let p = v3(s, i);
+                    let d = [p[0] - x_hat[i].x, p[1] - x_hat[i].y, p[2] - x_hat[i].z];
+                    e += (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * (0.5 * rate * masses[i] / dt);
+                }
+                e
+            },
+            &flat::<9>(&def),
+        );
+        let (g, h) = closed_form(Box::new(drag.clone()), &def);
+        let mut sys = System::new(3, vec![Box::new(drag)]).unwrap();
+        let (fd_g, _) = fd_energy_derivatives(&def, 1e-6, |y| {
+            let r = sys
+                .evaluate(y, Request::GRADIENT, Parallelism::Sequential)
+                .unwrap();
+            (r.energy, r.gradient)
+        });
+        assert!(rel_error(&g, &fd_g) < 1e-8, "{}", rel_error(&g, &fd_g));
+        // The force is −c m v with v = (x − x̂)/Δt.
+        let v0 = (def[0] - x_hat[0]) / dt;
+        assert!((g[0] - rate * masses[0] * v0.x).abs() < 1e-12);
+        compare("drag", (g, h), ad);
+    }
+
+    #[test]
     fn quadratic_bending_matches_num_dual() {
         let quad = vec![
             Vector3::new(0.0, 0.0, 0.0),
@@ -612,4 +668,95 @@ mod autodiff_oracle {
         );
         compare("quadratic-bending", closed_form(Box::new(qb), &def), ad);
     }
+}
+
+/// Σ a θ² / (κ² A) for `rest` (flat, in the xy plane) wrapped onto a cylinder of curvature κ whose axis is
+/// the in-plane direction at angle `axis` from y (κ = 0.05 / mesh unit: bend angles far below 1).
+fn cylinder_ratio(rest: &TriMesh, axis: f64) -> f64 {
+    let kappa = 0.05;
+    let (c, s) = (axis.cos(), axis.sin());
+    let x: Vec<Vector3<f64>> = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            // u across the axis, w along it.
+            let (u, w) = (c * p.x + s * p.y, -s * p.x + c * p.y);
+            let (su, cu) = (u * kappa).sin_cos();
+            let (along, z) = (su / kappa, (1.0 - cu) / kappa);
+            Vector3::new(c * along - s * w, s * along + c * w, z)
+        })
+        .collect();
+    let model = BendingModel::new(rest, DiscreteShells { k: 1.0 }).unwrap();
+    let e = model
+        .evaluate(
+            &x,
+            Request::VALUE,
+            Method::Refactored,
+            Parallelism::Sequential,
+        )
+        .unwrap()
+        .energy;
+    let area: f64 = rest
+        .triangles()
+        .iter()
+        .map(|t| {
+            let p = rest.positions();
+            0.5 * (p[t[1]] - p[t[0]]).cross(&(p[t[2]] - p[t[0]])).norm()
+        })
+        .sum();
+    e / (kappa * kappa * area)
+}
+
+/// Rows of equilateral triangles (odd rows shifted by half an edge), `nx` edges along x, `ny` rows.
+fn equilateral(nx: usize, ny: usize) -> TriMesh {
+    let h = 1.0;
+    let s = h * 3f64.sqrt() / 2.0;
+    let mut p = Vec::new();
+    for j in 0..=ny {
+        let shift = if j % 2 == 1 { 0.5 * h } else { 0.0 };
+        for i in 0..=nx {
+            p.push(Vector3::new(i as f64 * h + shift, j as f64 * s, 0.0));
+        }
+    }
+    let v = |i: usize, j: usize| j * (nx + 1) + i;
+    let mut t = Vec::new();
+    for j in 0..ny {
+        for i in 0..nx {
+            if j % 2 == 0 {
+                t.push([v(i, j), v(i + 1, j), v(i, j + 1)]);
+                t.push([v(i + 1, j), v(i + 1, j + 1), v(i, j + 1)]);
+            } else {
+                t.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+                t.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            }
+        }
+    }
+    TriMesh::new(p, t).unwrap()
+}
+
+#[test]
+fn cylinder_patch_test_gives_three_times_the_plate_energy() {
+    // The plate stores (D/2) κ² per area in cylindrical bending; the hinge energy with a = 3‖ē‖²/Ā stores
+    // Σ a θ² → 3 κ² per area on grids bent across their columns (exactly, up to the boundary row: the column
+    // edges carry θ = κ h_x, all others 0) and on equilateral meshes in every direction. Hence
+    // `plate_consistent_stiffness` = Eq. 11 / 3.
+    for diagonal in [Diagonal::Forward, Diagonal::Alternating] {
+        for (nx, ny, w, h) in [(60, 5, 0.3 * 40.0, 0.025 * 40.0), (40, 40, 40.0, 40.0)] {
+            let rest = grid(nx, ny, w, h, diagonal).unwrap();
+            let r = cylinder_ratio(&rest, 0.0);
+            println!("grid {nx}×{ny} {diagonal:?}: Σaθ²/(κ²A) = {r:.4}");
+            assert!((r - 3.0).abs() < 0.03 * 3.0, "{r}");
+        }
+    }
+    let eq = equilateral(40, 46);
+    for axis in [0.0, 0.3, std::f64::consts::FRAC_PI_4, 1.2] {
+        let r = cylinder_ratio(&eq, axis);
+        println!("equilateral, axis {axis:.2}: Σaθ²/(κ²A) = {r:.4}");
+        assert!((r - 3.0).abs() < 0.03 * 3.0, "{r}");
+    }
+    // Bent along the diagonals, a forward grid is far stiffer: the mesh dependence the docs warn about.
+    let fwd = grid(40, 40, 40.0, 40.0, Diagonal::Forward).unwrap();
+    assert!(cylinder_ratio(&fwd, std::f64::consts::FRAC_PI_4) > 6.0);
+    let k = plate_consistent_stiffness(7e10, 2e-3, 0.3);
+    assert!((3.0 * k / stiffness_from_material(7e10, 2e-3, 0.3) - 1.0).abs() < 1e-15);
 }
