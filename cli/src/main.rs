@@ -6,8 +6,11 @@
 
 mod bench;
 mod eval;
+mod plot;
+mod report;
 mod run;
 mod scene;
+mod stability;
 
 use std::process::ExitCode;
 
@@ -48,6 +51,10 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Simulate a scene (built-in name or TOML file), writing OBJ frames and summary.json (the default job).
     Run(run::RunArgs),
+    /// The paper's evaluation and more: Hessian accuracy, cost fits, time shares, error against run time.
+    Report(report::ReportArgs),
+    /// Stability on stiff and extreme cases: a table of cases, each passing or failing with its figures.
+    Stability(stability::StabilityArgs),
     /// List the built-in scenes, or print one's TOML (`hinge scenes show NAME`).
     Scenes {
         /// `show`
@@ -91,6 +98,8 @@ fn main() -> ExitCode {
         Some(Command::Eval(args)) => eval::run(args),
         Some(Command::Bench(args)) => bench::run(args),
         Some(Command::Run(args)) => run::run(args),
+        Some(Command::Report(args)) => report::run(args),
+        Some(Command::Stability(args)) => stability::run(args),
         Some(Command::Scenes { action, name }) => scenes(action.as_deref(), name.as_deref()),
     };
     match result {

@@ -83,6 +83,8 @@ pub struct RunSummary {
     pub far_end_drop: f64,
     /// Largest vertex speed at the end (0 for a static solve): how close a damped run is to equilibrium.
     pub max_speed: f64,
+    /// ‖∇F‖ over the free degrees of freedom after the last Newton solve.
+    pub final_gradient_norm: f64,
 }
 
 /// The system a scene simulates, with its masses, pins, solver and Newton parameters.
@@ -200,6 +202,9 @@ fn min_clearance(spheres: &[(Vector3<f64>, f64)], x: &[Vector3<f64>]) -> Option<
         .reduce(f64::min)
 }
 
+/// Newton iteration budget of a static solve (at least; the scene's when larger).
+pub const STATIC_ITERATIONS: usize = 2000;
+
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
 /// `static.obj` to `out` when given.
 ///
@@ -219,6 +224,12 @@ pub fn equilibrium(
         spheres,
         ..
     } = build(scene, rest, false)?;
+    // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
+    // 1e9 at h = 0.1 mm) take hundreds of damped Newton steps to swing down: statics gets a larger budget.
+    let params = NewtonParams {
+        max_iterations: params.max_iterations.max(STATIC_ITERATIONS),
+        ..params
+    };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
     let stats = newton
@@ -236,6 +247,7 @@ pub fn equilibrium(
         n_vertices: rest.n_vertices(),
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
+        final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
     };
     for (name, sec) in system.take_timings() {
         if name == "bending" {
@@ -283,7 +295,7 @@ pub fn simulate(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<&std::path::Path>,
-    mut progress: impl FnMut(usize, usize, f64),
+    mut progress: impl FnMut(usize, usize, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
     let n = rest.n_vertices();
@@ -310,6 +322,7 @@ pub fn simulate(
         n_vertices: n,
         far_end_drop: 0.0,
         max_speed: 0.0,
+        final_gradient_norm: f64::NAN,
     };
     for frame in 0..scene.frames {
         let t = Instant::now();
@@ -317,6 +330,7 @@ pub fn simulate(
             .step(&mut system, &mut x, &mut v)
             .map_err(|e| format!("frame {frame}: {e}"))?;
         summary.newton_iterations += stats.iterations;
+        summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
         summary.line_search_steps += stats.line_search_steps;
         summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
         for (name, sec) in system.take_timings() {
@@ -334,7 +348,7 @@ pub fn simulate(
             )
             .map_err(|e| e.to_string())?;
         }
-        progress(frame, stats.iterations, t.elapsed().as_secs_f64());
+        progress(frame, stats.iterations, t.elapsed().as_secs_f64(), &x);
     }
     summary.min_clearance = min_clearance(&spheres, &x);
     summary.far_end_drop = far_end_drop(rest, &x);
@@ -387,14 +401,19 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         pool.install(|| equilibrium(&scene, &rest, frames_dir))?
     } else {
         pool.install(|| {
-            simulate(&scene, &rest, frames_dir, |frame, iterations, seconds| {
-                println!(
-                    "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
-                    frame + 1,
-                    seconds * 1e3
-                );
-                let _ = std::io::stdout().flush();
-            })
+            simulate(
+                &scene,
+                &rest,
+                frames_dir,
+                |frame, iterations, seconds, _| {
+                    println!(
+                        "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
+                        frame + 1,
+                        seconds * 1e3
+                    );
+                    let _ = std::io::stdout().flush();
+                },
+            )
         })?
     };
     let json = serde_json::json!({

@@ -474,3 +474,99 @@ fn beams_run_settle_and_match_plate_theory() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn stability_quick_cases_all_pass() {
+    let dir = tmp("stability");
+    let file = dir.join("stability.json");
+    let o = hinge(&["stability", "--quick", "--json", file.to_str().unwrap()]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    let cases = v["cases"].as_array().unwrap();
+    for c in cases {
+        assert_eq!(c["pass"], true, "{c}");
+    }
+    let named = |prefix: &str| {
+        cases
+            .iter()
+            .filter(|c| c["name"].as_str().unwrap().starts_with(prefix))
+            .collect::<Vec<_>>()
+    };
+    // Every group is present.
+    assert!(named("stiff beam").len() >= 4);
+    assert_eq!(named("near ±π").len(), 5);
+    assert!(named("rest angle near ±π").len() >= 4);
+    assert!(named("large time step").len() >= 4);
+    // Stiff beams converge to a small residual.
+    for c in named("stiff beam") {
+        assert!(c["final_residual"].as_f64().unwrap() < 1e-5, "{c}");
+    }
+    // The tan energy is a barrier: its energy grows tenfold and more at each step towards π.
+    let tan = named("near ±π: tan-bending")[0];
+    assert_eq!(tan["barrier_grows"], true);
+    // True collapse is a typed error; the errors before it are finite.
+    let deg = named("near-degenerate")[0]["altitudes"].as_array().unwrap();
+    assert!(deg.last().unwrap()["typed_error"].is_string());
+    assert!(deg[0]["hessian_ulps"].as_f64().unwrap() < 100.0);
+    // Scaling by 1e±6 changes neither the energy nor the relative error of the Hessian.
+    for s in named("extreme scales")[0]["scales"].as_array().unwrap() {
+        assert!(s["energy_relative_change"].as_f64().unwrap() < 1e-12, "{s}");
+        assert!(s["hessian_ulps"].as_f64().unwrap() < 50.0, "{s}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn report_quick_writes_tables_json_and_plots() {
+    let dir = tmp("report");
+    let o = hinge(&["report", "--quick", "--out", dir.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    for key in ["accuracy", "cost", "fits", "fractions"] {
+        assert!(!v[key].is_null(), "{key}");
+    }
+    // Accuracy: every method within a few tens of ulps of the double-double reference along the drape, with
+    // large bend angles reached.
+    for row in v["accuracy"].as_array().unwrap() {
+        assert!(row["max_abs_theta"].as_f64().unwrap() > 2.0);
+        for m in ["refactored", "per_hinge", "autodiff"] {
+            let e = &row["methods"][m];
+            assert!(e["max_ulps"].as_f64().unwrap() < 100.0, "{m}: {e}");
+            assert!(e["median_ulps"].as_f64().unwrap() > 0.0, "{m}: {e}");
+        }
+    }
+    // Cost: near-linear in the vertex count; autodiff far slower than refactored.
+    let fits = &v["fits"];
+    let k = fits["refactored"]["k"].as_f64().unwrap();
+    assert!(k > 0.8 && k < 1.4, "k = {k}");
+    assert!(
+        fits["autodiff"]["ratio_to_refactored_common_k"]
+            .as_f64()
+            .unwrap()
+            > 5.0
+    );
+    assert!(v["cost"].as_array().unwrap().len() >= 6);
+    // Fractions: shares in (0, 1) for the drape and the five beams.
+    let fr = v["fractions"].as_array().unwrap();
+    assert_eq!(fr.len(), 6);
+    for f in fr {
+        let b = f["bending_fraction"].as_f64().unwrap();
+        assert!(b > 0.0 && b < 1.0, "{f}");
+    }
+    // Markdown tables and PNG plots (valid PNG signatures).
+    let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(md.contains("| vertices |") && md.contains("error_vs_time.png"));
+    for png in ["error_vs_time.png", "cost.png"] {
+        let bytes = std::fs::read(dir.join(png)).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{png}");
+        assert!(bytes.len() > 5_000, "{png}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

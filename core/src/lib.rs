@@ -80,6 +80,7 @@ pub mod hinge;
 pub mod mesh;
 pub mod obj;
 pub mod pattern;
+pub mod precise;
 pub mod psi;
 pub mod topology;
 

@@ -313,3 +313,46 @@ fn degenerate_stencils_give_typed_errors() {
     let d = hinge_angle_hessian(&x).unwrap();
     assert!(d.hessian.iter().all(|v| v.is_finite()));
 }
+
+/// ‖a − ref‖_F / ‖ref‖_F with the difference taken in double-double, in units of 2⁻⁵³.
+fn ulps_vs_reference(a: &[f64], r: &[hinge_core::precise::Dd]) -> f64 {
+    use hinge_core::precise::Dd;
+    let (mut num, mut den) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(r) {
+        let d = (Dd::from(*x) - *y).to_f64();
+        num += d * d;
+        den += y.to_f64() * y.to_f64();
+    }
+    (num / den).sqrt() / UNIT_ROUNDOFF
+}
+
+#[test]
+fn closed_form_and_num_dual_against_the_double_double_reference() {
+    use hinge_core::precise::reference_hinge_angle;
+    let (mut cf_h, mut ad_h, mut cf_g) = (Vec::new(), Vec::new(), Vec::new());
+    for (_, x) in sample().into_iter().step_by(10) {
+        let flat = flatten(&x);
+        let r = reference_hinge_angle(&flat);
+        assert!((r.v.to_f64() - hinge_angle(&x).unwrap()).abs() < 1e-15);
+        let href: Vec<_> = (0..144).map(|k| r.hessian(k / 12, k % 12)).collect();
+        let cf = hinge_angle_hessian(&x).unwrap();
+        let ad = hinge_angle_autodiff(&x).unwrap();
+        // nalgebra stores column-major; the Hessian is symmetric, so the order does not matter.
+        cf_h.push(ulps_vs_reference(cf.hessian.as_slice(), &href));
+        ad_h.push(ulps_vs_reference(ad.hessian.as_slice(), &href));
+        cf_g.push(ulps_vs_reference(cf.gradient.as_slice(), &r.g));
+    }
+    let g = summary(
+        "gradient closed form vs double-double reference (ulps)",
+        &cf_g,
+    );
+    let c = summary(
+        "hessian closed form vs double-double reference (ulps)",
+        &cf_h,
+    );
+    let a = summary("hessian num-dual vs double-double reference (ulps)", &ad_h);
+    assert!(g <= GRADIENT_ULPS && c <= HESSIAN_ULPS, "{g} {c}");
+    // num-dual rounds in f64 too: a few ulps, and it must not be exact (else the reference is not
+    // independent of f64 rounding).
+    assert!(a <= HESSIAN_ULPS && quantile(&ad_h, 0.5) > 0.1, "{a}");
+}

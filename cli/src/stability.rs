@@ -1,0 +1,372 @@
+//! `hinge stability`: stiff and extreme cases, each passing or failing with its figures.
+//!
+//! A case passes when nothing non-finite comes out unannounced: values are finite, or the library returns a
+//! typed error; solvers converge, or fail with a clear error and the state untouched; relative errors do not
+//! grow where the mathematics says they should not (scaling).
+
+use clap::Args;
+use hinge_core::TriMesh;
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::grid::{Diagonal, grid, wave};
+use hinge_core::hinge::{Stencil, hinge_angle_hessian};
+use hinge_core::nalgebra::Vector3;
+use hinge_core::precise::{Dd, reference_hinge_angle};
+use hinge_core::psi::HingePsi;
+use hinge_energies::bending::{
+    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
+};
+use hinge_solver::newton::ImplicitEuler;
+use serde_json::{Value, json};
+use std::f64::consts::PI;
+
+/// Arguments of `hinge stability`.
+#[derive(Args)]
+pub struct StabilityArgs {
+    /// Write `{"cases": [...]}` to this file.
+    #[arg(long)]
+    pub json: Option<std::path::PathBuf>,
+    /// Small instances of every case (what the tests run).
+    #[arg(long)]
+    pub quick: bool,
+}
+
+fn err(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+/// Two triangles on the edge x1 = (0,0,0) – x2 = (1,0,0): x0 above, x3 rotated about the edge by `phi`
+/// (φ = 0: flat; |φ| → π: folded onto x0). Triangles (x0, x1, x2) and (x3, x2, x1).
+fn two_triangles(phi: f64) -> Result<TriMesh, String> {
+    let p = vec![
+        Vector3::new(0.4, 0.8, 0.0),
+        Vector3::new(0.0, 0.0, 0.0),
+        Vector3::new(1.0, 0.0, 0.0),
+        Vector3::new(0.6, -0.8 * phi.cos(), 0.8 * phi.sin()),
+    ];
+    TriMesh::new(p, vec![[0, 1, 2], [3, 2, 1]]).map_err(err)
+}
+
+/// What one evaluation gave: `Ok((energy, max |gradient|, max |Hessian|))` or a typed error's text;
+/// `finite` is false only for non-finite numbers returned as success.
+struct Probe {
+    text: Value,
+    finite: bool,
+    energy: Option<f64>,
+}
+
+fn probe<P: HingePsi + Send + 'static>(model: &BendingModel<P>, x: &[Vector3<f64>]) -> Probe
+where
+    P::Params: Send + Sync,
+{
+    match model.evaluate(x, Request::ALL, Method::Refactored, Parallelism::Sequential) {
+        Ok(e) => {
+            let g = e.gradient.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let h = e.hessian.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let finite = e.energy.is_finite() && g.is_finite() && h.is_finite();
+            Probe {
+                text: json!({"energy": e.energy, "max_abs_gradient": g, "max_abs_hessian": h}),
+                finite,
+                energy: Some(e.energy),
+            }
+        }
+        Err(e) => Probe {
+            text: json!({"typed_error": e.to_string()}),
+            finite: true,
+            energy: None,
+        },
+    }
+}
+
+/// Bend angles 0.9π … π − 1e-6 (both signs) for one hinge energy on a flat rest hinge.
+fn near_pi<P: HingePsi + Send + 'static>(name: &str, psi: P) -> Result<Value, String>
+where
+    P::Params: Send + Sync,
+{
+    let mut model = BendingModel::new(&two_triangles(0.0)?, psi).map_err(err)?;
+    // Damping needs a step: the previous state is the flat rest.
+    model
+        .set_step(two_triangles(0.0)?.positions(), 0.01)
+        .map_err(err)?;
+    let mut rows = Vec::new();
+    let mut pass = true;
+    let mut energies = Vec::new();
+    for theta in [0.9 * PI, 0.99 * PI, 0.999 * PI, PI - 1e-6] {
+        for sign in [1.0, -1.0] {
+            let x = two_triangles(sign * theta)?;
+            let p = probe(&model, x.positions());
+            pass &= p.finite;
+            if sign > 0.0 {
+                energies.push(p.energy.unwrap_or(f64::INFINITY));
+            }
+            rows.push(json!({"theta": sign * theta, "result": p.text}));
+        }
+    }
+    let mut case = json!({"name": format!("near ±π: {name}"), "pass": pass, "angles": rows});
+    if name == "tan-bending" {
+        // The barrier: the energy grows without bound as θ → π (like 1/(π − θ)²).
+        let grows = energies.windows(2).all(|w| w[1] > 10.0 * w[0]);
+        case["barrier_energies"] = json!(energies);
+        case["barrier_grows"] = json!(grows);
+        case["pass"] = json!(pass && grows);
+    }
+    Ok(case)
+}
+
+/// Rest angle θ̄ = ±(π − ε): at rest, moving toward π, and across π (the angle wraps to ∓(π − ε/2)).
+fn wrap<P: HingePsi + Clone + Send + 'static>(name: &str, psi: P, eps: f64) -> Result<Value, String>
+where
+    P::Params: Send + Sync,
+{
+    let mut rows = Vec::new();
+    let mut pass = true;
+    for sign in [1.0, -1.0] {
+        let bar = sign * (PI - eps);
+        let rest = two_triangles(bar)?;
+        let mut model = BendingModel::new(&rest, psi.clone()).map_err(err)?;
+        model.set_step(rest.positions(), 0.01).map_err(err)?;
+        let at_rest = probe(&model, rest.positions());
+        let toward = probe(&model, two_triangles(sign * (PI - 0.5 * eps))?.positions());
+        let across = probe(&model, two_triangles(sign * (PI + 0.5 * eps))?.positions());
+        let rest_energy = at_rest.energy.unwrap_or(0.0);
+        pass &= at_rest.finite && toward.finite && across.finite && rest_energy.abs() < 1e-12;
+        rows.push(json!({
+            "theta_bar": bar,
+            "at_rest": at_rest.text,
+            "toward_pi": toward.text,
+            "across_pi": across.text,
+        }));
+    }
+    Ok(
+        json!({"name": format!("rest angle near ±π (ε = {eps:e}): {name}"), "pass": pass, "rest_states": rows}),
+    )
+}
+
+fn ulps(a: &[f64], r: &[Dd]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(r) {
+        let d = (Dd::from(*x) - *y).to_f64();
+        num += d * d;
+        den += y.to_f64() * y.to_f64();
+    }
+    (num / den).sqrt() / (f64::EPSILON / 2.0)
+}
+
+/// Near-degenerate upper triangle: x0's altitude over the hinge edge is `rel` times the edge length.
+fn degenerate(quick: bool) -> Value {
+    let rels: &[f64] = if quick {
+        &[1e-4, 1e-8, 1e-12, 0.0]
+    } else {
+        &[1e-4, 1e-6, 1e-8, 1e-10, 1e-12, 0.0]
+    };
+    let mut rows = Vec::new();
+    let mut pass = true;
+    for &rel in rels {
+        let s: Stencil = [
+            Vector3::new(0.3, rel, 0.0),
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.6, -0.5 * 0.7f64.cos(), 0.5 * 0.7f64.sin()),
+        ];
+        match hinge_angle_hessian(&s) {
+            Ok(d) => {
+                let flat: [f64; 12] = std::array::from_fn(|k| s[k / 3][k % 3]);
+                let r = reference_hinge_angle(&flat);
+                let href: Vec<Dd> = (0..144).map(|k| r.hessian(k / 12, k % 12)).collect();
+                let e = ulps(d.hessian.as_slice(), &href);
+                let finite = d.hessian.iter().all(|v| v.is_finite());
+                pass &= finite && rel > 0.0;
+                rows.push(json!({"altitude": rel, "hessian_ulps": e, "max_abs_hessian": d.hessian.amax()}));
+            }
+            Err(e) => {
+                // A typed error is the required outcome at true collapse; earlier it is allowed too.
+                rows.push(json!({"altitude": rel, "typed_error": e.to_string()}));
+            }
+        }
+    }
+    let collapsed_is_error = rows.last().is_some_and(|r| r.get("typed_error").is_some());
+    json!({"name": "near-degenerate triangles", "pass": pass && collapsed_is_error, "altitudes": rows})
+}
+
+/// The refactored Hessian's error against the reference, and the energy, at scales 1e-6, 1, 1e6.
+fn scales(quick: bool) -> Result<Value, String> {
+    let cells = if quick { 8 } else { 20 };
+    let base = grid(cells, cells, 1.0, 1.0, Diagonal::Alternating).map_err(err)?;
+    let bent = wave(base.positions());
+    let mut rows = Vec::new();
+    let mut reference = None;
+    let mut pass = true;
+    for s in [1.0, 1e-6, 1e6] {
+        let rest = base
+            .with_positions(base.positions().iter().map(|p| p * s).collect())
+            .map_err(err)?;
+        let x: Vec<Vector3<f64>> = bent.iter().map(|p| p * s).collect();
+        let model = BendingModel::new(&rest, TanBending { k: 1.0 }).map_err(err)?;
+        let e = model
+            .evaluate(
+                &x,
+                Request::ALL,
+                Method::Refactored,
+                Parallelism::Sequential,
+            )
+            .map_err(err)?;
+        let href = crate::report::reference_hessian(&model, &x);
+        let h: Vec<f64> = e.hessian.clone();
+        let u = ulps(&h, &href);
+        let (e0, u0) = *reference.get_or_insert((e.energy, u));
+        let energy_change = (e.energy - e0).abs() / e0.abs();
+        pass &= energy_change < 1e-12 && u <= 2.0 * u0 + 2.0 && e.energy.is_finite();
+        rows.push(
+            json!({"scale": s, "energy": e.energy, "energy_relative_change": energy_change,
+                         "hessian_ulps": u}),
+        );
+    }
+    Ok(json!({"name": "extreme scales (1e-6, 1e6)", "pass": pass, "scales": rows}))
+}
+
+/// Statics of a clamped strip for a range of materials: Newton converges.
+fn stiff_beams(quick: bool) -> Result<Vec<Value>, String> {
+    let youngs: &[f64] = if quick {
+        &[1e6, 2e11]
+    } else {
+        &[1e6, 1e8, 1e10, 2e11]
+    };
+    let thicknesses: &[f64] = if quick {
+        &[1e-4, 1e-2]
+    } else {
+        &[1e-4, 1e-3, 1e-2]
+    };
+    let mut out = Vec::new();
+    for &y in youngs {
+        for &h in thicknesses {
+            let (mut scene, _) = crate::scene::load("beam5")?;
+            scene.material.young = y;
+            scene.material.thickness = h;
+            scene.material.density = 1000.0 * h;
+            let rest = scene.rest_mesh(None)?;
+            let name = format!("stiff beam: Y = {y:e} Pa, h = {h:e} m");
+            match crate::run::equilibrium(&scene, &rest, None) {
+                Ok(s) => out.push(json!({"name": name, "pass": s.final_gradient_norm.is_finite(),
+                    "newton_iterations": s.newton_iterations, "final_residual": s.final_gradient_norm,
+                    "tip_deflection": s.far_end_drop})),
+                Err(e) => out.push(json!({"name": name, "pass": false, "error": e})),
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Large time steps with the default Newton strategy on the clamped strips (the soft ones swing down by
+/// most of their length within one step of 1 s): every step converges, or fails with a clear error and the
+/// state untouched.
+fn large_steps(quick: bool) -> Result<Vec<Value>, String> {
+    let mut out = Vec::new();
+    let beams: &[&str] = if quick {
+        &["beam1"]
+    } else {
+        &["beam1", "beam3"]
+    };
+    for &beam in beams {
+        for dt in [0.01, 0.1, 0.5, 1.0] {
+            let (mut scene, _) = crate::scene::load(beam)?;
+            scene.dt = dt;
+            let rest = scene.rest_mesh(None)?;
+            let b = crate::run::build(&scene, &rest, true)?;
+            let mut system = b.system;
+            let mut stepper = ImplicitEuler::new(&system, dt, b.masses, b.pins, b.solver, b.params)
+                .map_err(err)?;
+            let (mut x, mut v) = (
+                rest.positions().to_vec(),
+                vec![Vector3::zeros(); rest.n_vertices()],
+            );
+            let mut iterations = Vec::new();
+            let mut failure = Value::Null;
+            let mut pass = true;
+            for _ in 0..5 {
+                let (x0, v0) = (x.clone(), v.clone());
+                match stepper.step(&mut system, &mut x, &mut v) {
+                    Ok(s) => iterations.push(s.iterations),
+                    Err(e) => {
+                        let intact = x == x0 && v == v0;
+                        pass = intact;
+                        failure = json!({"error": e.to_string(), "state_intact": intact});
+                        break;
+                    }
+                }
+            }
+            let finite = x.iter().all(|p| p.iter().all(|c| c.is_finite()));
+            let r = rest.positions();
+            let drop = (0..r.len()).map(|i| r[i].z - x[i].z).fold(0.0f64, f64::max);
+            out.push(
+                json!({"name": format!("large time step: {beam}, dt = {dt} s"),
+                "pass": pass && finite, "newton_iterations": iterations, "largest_drop": drop,
+                "failure": failure}),
+            );
+        }
+    }
+    Ok(out)
+}
+
+/// All cases.
+pub fn cases(quick: bool) -> Result<Vec<Value>, String> {
+    let k = stiffness_from_material(2e5, 5e-4, 0.3);
+    let mut cases = stiff_beams(quick)?;
+    cases.push(near_pi("discrete-shells", DiscreteShells { k })?);
+    cases.push(near_pi("tan-bending", TanBending { k })?);
+    cases.push(near_pi("willmore", Willmore { k })?);
+    cases.push(near_pi("bridson", Bridson { k })?);
+    cases.push(near_pi("viscous-damping", ViscousDamping { kd: k })?);
+    for eps in if quick { vec![1e-2] } else { vec![1e-2, 1e-4] } {
+        cases.push(wrap("discrete-shells", DiscreteShells { k }, eps)?);
+        cases.push(wrap("tan-bending", TanBending { k }, eps)?);
+        cases.push(wrap("willmore", Willmore { k }, eps)?);
+        cases.push(wrap("bridson", Bridson { k }, eps)?);
+    }
+    cases.push(degenerate(quick));
+    cases.push(scales(quick)?);
+    cases.extend(large_steps(quick)?);
+    Ok(cases)
+}
+
+fn figures(case: &Value) -> String {
+    let mut s = String::new();
+    if let Some(o) = case.as_object() {
+        for (k, v) in o {
+            if k == "name" || k == "pass" {
+                continue;
+            }
+            let t = v.to_string();
+            let t = if t.chars().count() > 110 {
+                format!("{}…", t.chars().take(110).collect::<String>())
+            } else {
+                t
+            };
+            s.push_str(&format!("{k}={t} "));
+        }
+    }
+    s
+}
+
+/// Runs `hinge stability`.
+pub fn run(args: StabilityArgs) -> Result<(), String> {
+    let cases = cases(args.quick)?;
+    let mut failed = 0;
+    for c in &cases {
+        let pass = c["pass"].as_bool() == Some(true);
+        failed += usize::from(!pass);
+        println!(
+            "{} {:<55} {}",
+            if pass { "PASS" } else { "FAIL" },
+            c["name"].as_str().unwrap_or("?"),
+            figures(c)
+        );
+    }
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&json!({"cases": cases})).map_err(err)?;
+        std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
+    println!("{} cases, {failed} failed", cases.len());
+    if failed > 0 {
+        return Err(format!("{failed} stability case(s) failed"));
+    }
+    Ok(())
+}
