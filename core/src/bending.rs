@@ -32,6 +32,7 @@
 
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use num_dual::{Dual2SVec64, hessian};
+#[cfg(feature = "rayon")]
 use rayon::prelude::*;
 
 use crate::autodiff::{flatten, hinge_angle_generic};
@@ -196,6 +197,7 @@ struct Partition {
 }
 
 /// Hinges per parallel task of the hinge pass (large enough that task overhead is negligible).
+#[cfg(feature = "rayon")]
 const HINGE_CHUNK: usize = 4096;
 
 /// Vertices per partition on large meshes. An element straddling two partitions is computed by both, so
@@ -575,7 +577,7 @@ impl<P: HingePsi> BendingModel<P> {
     /// Evaluates the requested quantities at positions `x` into `out`, using `scratch`.
     ///
     /// # Errors
-    /// [`MeshError::VertexCountMismatch`] or [`MeshError::NonFiniteCoordinate`] for bad positions;
+    /// [`crate::MeshError::VertexCountMismatch`] or [`crate::MeshError::NonFiniteCoordinate`] for bad positions;
     /// [`EvalError::Hinge`] naming the lowest-numbered degenerate hinge; [`EvalError::NonFiniteEnergy`] when ψ
     /// is not finite at some hinge (the tan energy at θ = ±π). On error `out` holds no meaningful values.
     pub fn evaluate_into(
@@ -678,6 +680,18 @@ impl<P: HingePsi> BendingModel<P> {
                 })
                 .min_by_key(|(h, _)| *h)
                 .map(|(_, e)| e),
+            #[cfg(not(feature = "rayon"))]
+            Parallelism::Rayon => states
+                .iter_mut()
+                .zip(&self.state_order)
+                .filter_map(|(s, &h)| {
+                    self.hinge_pass(h as usize, x, need_grad, s)
+                        .err()
+                        .map(|e| (h, e))
+                })
+                .min_by_key(|(h, _)| *h)
+                .map(|(_, e)| e),
+            #[cfg(feature = "rayon")]
             Parallelism::Rayon => states
                 .par_chunks_mut(HINGE_CHUNK)
                 .zip(self.state_order.par_chunks(HINGE_CHUNK))
@@ -943,7 +957,13 @@ impl<P: HingePsi> Ctx<'_, P> {
                 } else {
                     hess.split_at_mut(hsplit)
                 };
+                #[cfg(feature = "rayon")]
                 rayon::join(|| self.run_range(a, ga, ha), || self.run_range(b, gb, hb));
+                #[cfg(not(feature = "rayon"))]
+                {
+                    self.run_range(a, ga, ha);
+                    self.run_range(b, gb, hb);
+                }
             }
         }
     }

@@ -77,6 +77,7 @@ pub mod export;
 pub mod geometry;
 pub mod grid;
 pub mod hinge;
+pub mod layout;
 pub mod mesh;
 pub mod obj;
 pub mod pattern;

@@ -70,6 +70,20 @@ impl TriMesh {
         Self::new(positions, triangles)
     }
 
+    /// Builds a mesh from the caller's arrays: positions as `&[f64]`, `&[[f64; 3]]` or `&[Vector3<f64>]`,
+    /// triangles as `&[[u32; 3]]` or `&[[usize; 3]]` (see [`crate::layout`]).
+    ///
+    /// # Errors
+    /// As [`TriMesh::new`], and [`MeshError::FlatLength`] for a flat array whose length is not a multiple
+    /// of 3.
+    pub fn from_arrays<P, T>(positions: &P, triangles: &T) -> Result<Self, MeshError>
+    where
+        P: crate::layout::Positions + ?Sized,
+        T: crate::layout::Triangles + ?Sized,
+    {
+        Self::new(positions.as_vectors()?.to_vec(), triangles.to_usize())
+    }
+
     /// Vertex positions.
     pub fn positions(&self) -> &[Vector3<f64>] {
         &self.positions

@@ -153,6 +153,7 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
 
 /// Discrete shells (Grinspun et al. 2003): `ψ = k·a·(θ − θ̄)²`, declared with the derive macro.
 #[derive(Debug, Clone, PartialEq, crate::HingeEnergy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[psi(k * a * (theta - theta_bar).powi(2))]
 pub struct DiscreteShells {
     /// Bending stiffness k.
@@ -166,6 +167,7 @@ pub struct DiscreteShells {
 /// finite even at θ = π (about 1.6e16), so the values are huge but finite; the engine reports a typed error
 /// if they overflow.
 #[derive(Debug, Clone, PartialEq, crate::HingeEnergy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[psi(k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2))]
 pub struct TanBending {
     /// Bending stiffness k.

@@ -28,6 +28,7 @@ pub fn plate_consistent_stiffness(young: f64, thickness: f64, poisson: f64) -> f
 /// `ψ = k·a·(2 sin(θ/2) − 2 sin(θ̄/2))²`: for a flat rest state `4k·a·sin²(θ/2)`, the paper's `a·sin²(θ/2)`
 /// (Willmore-type) row up to the factor. Bounded as θ → ±π.
 #[derive(Debug, Clone, PartialEq, HingeEnergy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[psi(k * a * (2.0 * (theta / 2.0).sin() - 2.0 * (theta_bar / 2.0).sin()).powi(2))]
 pub struct Willmore {
     /// Bending stiffness.
@@ -37,6 +38,7 @@ pub struct Willmore {
 /// Bridson et al. (2003), integrated as the paper does: the energy whose `ψ′ = k·a·(sin(θ/2) − sin(θ̄/2))`,
 /// with `ψ(θ̄) = 0`: `ψ = k·a·(2cos(θ̄/2) − 2cos(θ/2) − (θ − θ̄) sin(θ̄/2))`.
 #[derive(Debug, Clone, PartialEq, HingeEnergy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[psi(k * a * (2.0 * (theta_bar / 2.0).cos() - 2.0 * (theta / 2.0).cos() - (theta - theta_bar) * (theta_bar / 2.0).sin()))]
 pub struct Bridson {
     /// Bending stiffness.
@@ -48,6 +50,7 @@ pub struct Bridson {
 /// [`hinge_core::bending::BendingModel::set_step`]). Compose it with the elastic term as a tuple
 /// `(TanBending { .. }, ViscousDamping { .. })` so both share one geometric pass.
 #[derive(Debug, Clone, PartialEq, HingeEnergy)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[psi(kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2))]
 pub struct ViscousDamping {
     /// Damping coefficient k_d.

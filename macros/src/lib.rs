@@ -11,6 +11,7 @@
 //! straight-line code for ψ, ψ′, ψ″ with the common subexpressions shared. It never panics on user input.
 
 // Float comparisons in guards (`Some(x) if x == 0.0`) read as the algebra they implement.
+#![deny(missing_docs)]
 #![allow(clippy::redundant_guards)]
 
 mod expand;

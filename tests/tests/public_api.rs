@@ -1,0 +1,259 @@
+//! hinge used the way an outside crate uses it: only public items of hinge-core, hinge-energies and
+//! hinge-solver. A user energy implements `Energy` and composes with built-in ones; Newton minimises the
+//! sum; hinge's linear solvers solve a user matrix; evaluations run on the caller's arrays and pools.
+
+use std::sync::Arc;
+
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Accumulator, Energy, HingeTerm, System};
+use hinge_core::export::{CsrLayout, faer_lower, full_csr};
+use hinge_core::layout::{Positions, as_vectors_mut};
+use hinge_core::nalgebra::{Matrix3, Vector3};
+use hinge_core::pattern::SymmetricPattern;
+use hinge_core::psi::TanBending;
+use hinge_core::{EvalError, TriMesh};
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::pins::Pins;
+use hinge_solver::linear::{FaerLlt, LinearSolver, LowerCsc};
+use hinge_solver::newton::{Newton, NewtonParams};
+
+/// A user energy: every vertex tied to an anchor by a spring, `½ c ‖x_i − a_i‖²`.
+struct Anchors {
+    anchors: Vec<Vector3<f64>>,
+    c: f64,
+    diag: Vec<usize>,
+}
+
+impl Energy for Anchors {
+    fn name(&self) -> &str {
+        "anchors"
+    }
+    fn n_vertices(&self) -> usize {
+        self.anchors.len()
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        self.diag = (0..self.anchors.len())
+            .map(|v| {
+                pattern.find(v, v).ok_or(EvalError::Pattern {
+                    message: format!("no diagonal block for vertex {v}"),
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        let mut e = 0.0;
+        for (i, (p, a)) in x.iter().zip(&self.anchors).enumerate() {
+            let d = p - a;
+            e += 0.5 * self.c * d.norm_squared();
+            acc.add_gradient(i, &(d * self.c));
+            if request.hessian {
+                acc.add_block(self.diag[i], i, i, &(Matrix3::identity() * self.c));
+            }
+        }
+        Ok(e)
+    }
+}
+
+/// The caller's data: flat coordinates and u32 triangles of a 6×5 grid, bent.
+fn user_arrays() -> (Vec<f64>, Vec<f64>, Vec<[u32; 3]>) {
+    let (nx, ny) = (6usize, 5usize);
+    let (mut rest, mut bent) = (Vec::new(), Vec::new());
+    for j in 0..=ny {
+        for i in 0..=nx {
+            let (x, y) = (i as f64 / nx as f64, j as f64 / ny as f64);
+            rest.extend_from_slice(&[x, y, 0.0]);
+            bent.extend_from_slice(&[x, y, 0.2 * (2.0 * x).sin() * (1.0 + y)]);
+        }
+    }
+    let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+    let mut tris = Vec::new();
+    for j in 0..ny {
+        for i in 0..nx {
+            tris.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            tris.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    (rest, bent, tris)
+}
+
+fn assert_send_sync<T: Send + Sync>() {}
+fn assert_send<T: Send>() {}
+
+#[test]
+fn types_are_send_and_sync() {
+    assert_send_sync::<TriMesh>();
+    assert_send_sync::<BendingModel<TanBending>>();
+    assert_send_sync::<System>();
+    assert_send_sync::<CsrLayout>();
+    assert_send_sync::<Pins>();
+    assert_send_sync::<EvalError>();
+    assert_send::<FaerLlt>();
+    assert_send::<Newton>();
+}
+
+#[test]
+fn caller_layouts_give_the_same_mesh_and_no_copies() {
+    let (rest, _, tris) = user_arrays();
+    let a = TriMesh::from_arrays(&rest[..], &tris[..]).unwrap();
+    let triples: Vec<[f64; 3]> = rest.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let tris_usize: Vec<[usize; 3]> = tris.iter().map(|t| t.map(|v| v as usize)).collect();
+    let b = TriMesh::from_arrays(&triples[..], &tris_usize[..]).unwrap();
+    assert_eq!(a.positions(), b.positions());
+    assert_eq!(a.triangles(), b.triangles());
+    // Views share memory; a length that is not a multiple of three is a typed error, not a panic.
+    assert_eq!(
+        rest.as_vectors().unwrap().as_ptr() as *const f64,
+        rest.as_ptr()
+    );
+    assert!(rest[..7].as_vectors().is_err());
+    let mut g = vec![0.0; 9];
+    as_vectors_mut(&mut g).unwrap()[1].y = 2.0;
+    assert_eq!(g[4], 2.0);
+}
+
+#[test]
+fn user_energy_composes_and_newton_minimises_it() {
+    let (rest, bent, tris) = user_arrays();
+    let mesh = TriMesh::from_arrays(&rest[..], &tris[..]).unwrap();
+    let n = mesh.n_vertices();
+    let anchors: Vec<Vector3<f64>> = bent.as_vectors().unwrap().to_vec();
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&mesh, TanBending { k: 0.05 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(Anchors {
+            anchors,
+            c: 3.0,
+            diag: Vec::new(),
+        }),
+        Box::new(
+            Gravity::new(lumped_masses(&mesh, 1.0), Vector3::new(0.0, 0.0, -1.0)).unwrap(),
+        ),
+    ];
+    let mut system = System::new(n, terms).unwrap();
+    assert_eq!(system.term_names(), ["bending", "anchors", "gravity"]);
+    // Evaluate on the caller's flat buffer; the gradient matches central differences.
+    let e = system
+        .evaluate(
+            rest.as_vectors().unwrap(),
+            Request::ALL,
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    let h = 1e-6;
+    for d in [0, 7, 20, 3 * n - 1] {
+        let mut p = rest.clone();
+        p[d] += h;
+        let ep = system
+            .evaluate(p.as_vectors().unwrap(), Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy;
+        p[d] -= 2.0 * h;
+        let em = system
+            .evaluate(p.as_vectors().unwrap(), Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy;
+        let fd = (ep - em) / (2.0 * h);
+        assert!((fd - e.gradient[d]).abs() < 1e-6 * (1.0 + fd.abs()), "{d}");
+    }
+    // Newton minimises bending + the user's anchors + gravity (no pins: the anchors hold the mesh).
+    let pins = Pins::new(n, vec![]).unwrap();
+    let mut newton = Newton::new(
+        &system,
+        &pins,
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut x = mesh.positions().to_vec();
+    let stats = newton.minimize(&mut system, &mut x, None).unwrap();
+    let g = system
+        .evaluate(&x, Request::GRADIENT, Parallelism::Sequential)
+        .unwrap()
+        .gradient;
+    let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!(norm < 1e-7, "‖∇E‖ = {norm} after {} iterations", stats.iterations);
+}
+
+#[test]
+fn hessian_into_caller_csr_and_faer_and_own_pool() {
+    let (rest, bent, tris) = user_arrays();
+    let mesh = TriMesh::from_arrays(&rest[..], &tris[..]).unwrap();
+    let model = BendingModel::new(&mesh, TanBending { k: 1.0 }).unwrap();
+    let x = bent.as_vectors().unwrap();
+    let e = model
+        .evaluate(x, Request::ALL, Method::Refactored, Parallelism::Sequential)
+        .unwrap();
+    // The caller's CSR values, filled without allocation, equal the one-shot export.
+    let layout = CsrLayout::new(model.pattern());
+    let mut values = vec![0.0; layout.nnz()];
+    layout.scatter(&e.hessian, &mut values).unwrap();
+    let (rp, ci, v) = full_csr(model.pattern(), &e.hessian).unwrap();
+    assert_eq!((layout.row_ptr(), layout.col_idx()), (&rp[..], &ci[..]));
+    assert_eq!(values, v);
+    assert!(layout.scatter(&e.hessian, &mut values[1..]).is_err());
+    // A faer view of the lower triangle, no copy.
+    let m = faer_lower(model.pattern(), &e.hessian).unwrap();
+    assert_eq!(m.nrows(), 3 * mesh.n_vertices());
+    // The caller's own rayon pools: bitwise the same result for 1 and 3 threads.
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            model
+                .evaluate(x, Request::ALL, Method::Refactored, Parallelism::Rayon)
+                .unwrap()
+        })
+    };
+    let (one, three) = (run(1), run(3));
+    assert_eq!(one.energy.to_bits(), three.energy.to_bits());
+    assert!(one.gradient.iter().zip(&three.gradient).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(one.hessian.iter().zip(&three.hessian).all(|(a, b)| a.to_bits() == b.to_bits()));
+}
+
+#[test]
+fn hinge_linear_solvers_on_a_user_matrix() {
+    // The user's SPD matrix: a 1D Laplacian plus the identity, lower triangle in CSC.
+    let n = 50;
+    let (mut col_ptr, mut row_idx, mut values) = (vec![0], Vec::new(), Vec::new());
+    for c in 0..n {
+        row_idx.push(c);
+        values.push(3.0);
+        if c + 1 < n {
+            row_idx.push(c + 1);
+            values.push(-1.0);
+        }
+        col_ptr.push(row_idx.len());
+    }
+    let a = LowerCsc {
+        n,
+        col_ptr,
+        row_idx,
+    };
+    let b: Vec<f64> = (0..n).map(|i| (i as f64).sin()).collect();
+    let mut solver = FaerLlt::default();
+    solver.analyze(&a).unwrap();
+    solver.factor(&values).unwrap();
+    let mut x = b.clone();
+    solver.solve(&mut x).unwrap();
+    let mut ax = vec![0.0; n];
+    a.mul(&values, &x, &mut ax);
+    let err = ax.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+    assert!(err < 1e-13, "{err}");
+    // An indefinite matrix is a typed error from LLᵀ, not a panic.
+    let mut bad = values.clone();
+    bad[0] = -3.0;
+    assert!(solver.factor(&bad).is_err());
+}
