@@ -4,6 +4,8 @@
 //! implicit Euler, frames and a summary written to `out/drape/`. `hinge eval` evaluates an energy on your
 //! meshes and exports it; `hinge bench` measures the methods; `hinge stats` prints mesh statistics.
 
+#![deny(missing_docs)]
+
 mod bench;
 mod eval;
 mod plot;

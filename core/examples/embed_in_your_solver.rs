@@ -127,7 +127,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let springs: Vec<(usize, usize, f64, Vec<usize>)> = edges
         .iter()
         .map(|&(a, b)| {
-            let len = (0..3).map(|k| (x[3 * a + k] - x[3 * b + k]).powi(2)).sum::<f64>().sqrt();
+            let len = (0..3)
+                .map(|k| (x[3 * a + k] - x[3 * b + k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             // Slots of the 4 blocks (aa, ab, ba, bb), 9 entries each, row-major.
             let mut s = Vec::with_capacity(36);
             for (p, q) in [(a, a), (a, b), (b, a), (b, b)] {

@@ -53,6 +53,35 @@
 //! `fn psi<D: DualNum<Primitive = f64> + Copy>(&self, q: &HingeQuantities, theta: D) -> D` and obtains ψ′, ψ″
 //! with num-dual.
 //!
+//! # On your own arrays
+//!
+//! Positions as a flat `[f64]` (or `[[f64; 3]]`) are viewed without copying; the Hessian goes into your CSR
+//! arrays through a layout built once ([`layout`], [`export::CsrLayout`]).
+//!
+//! ```
+//! use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+//! use hinge_core::export::CsrLayout;
+//! use hinge_core::layout::Positions;
+//! use hinge_core::psi::TanBending;
+//! use hinge_core::TriMesh;
+//!
+//! // Two triangles folded along the edge 1–2.
+//! let rest = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0];
+//! let mine = [0.0, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0];
+//! let tris: [[u32; 3]; 2] = [[0, 1, 2], [3, 2, 1]];
+//! let mesh = TriMesh::from_arrays(&rest[..], &tris[..]).unwrap();
+//! let model = BendingModel::new(&mesh, TanBending { k: 1.0 }).unwrap();
+//! let (mut out, mut scratch) = (model.new_output(), model.new_scratch());
+//! model
+//!     .evaluate_into(mine.as_vectors().unwrap(), Request::ALL, Method::Refactored,
+//!                    Parallelism::Sequential, &mut scratch, &mut out)
+//!     .unwrap();
+//! let layout = CsrLayout::new(model.pattern());
+//! let mut csr_values = vec![0.0; layout.nnz()];
+//! layout.scatter(&out.hessian, &mut csr_values).unwrap();
+//! assert!(out.energy > 0.0 && csr_values.iter().any(|v| *v != 0.0));
+//! ```
+//!
 //! # Topology and one hinge
 //!
 //! ```

@@ -12,6 +12,31 @@
 //! - [`gravity::Gravity`] with lumped masses; [`drag::Drag`], mass-proportional damping (air drag);
 //!   [`contact`]: smooth one-sided penalties against a sphere or a plane; [`pins::Pins`], the constrained
 //!   vertices a solver eliminates.
+//!
+//! # Quick start
+//!
+//! ```
+//! use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+//! use hinge_core::energy::{Energy, HingeTerm, System};
+//! use hinge_core::grid::{grid, wave, Diagonal};
+//! use hinge_core::nalgebra::Vector3;
+//! use hinge_energies::bending::{stiffness_from_material, TanBending};
+//! use hinge_energies::gravity::{lumped_masses, Gravity};
+//! use hinge_energies::membrane::StvkMembrane;
+//!
+//! let rest = grid(10, 10, 1.0, 1.0, Diagonal::Alternating).unwrap();
+//! let k = stiffness_from_material(2e5, 5e-4, 0.3); // Eq. 11
+//! let terms: Vec<Box<dyn Energy>> = vec![
+//!     Box::new(HingeTerm::new("bending", BendingModel::new(&rest, TanBending { k }).unwrap(),
+//!                             Method::Refactored)),
+//!     Box::new(StvkMembrane::new(&rest, 2e5, 0.3, 5e-4).unwrap()),
+//!     Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+//! ];
+//! let mut system = System::new(rest.n_vertices(), terms).unwrap();
+//! let e = system.evaluate(&wave(rest.positions()), Request::ALL, Parallelism::Sequential).unwrap();
+//! assert_eq!(e.terms.len(), 3);
+//! assert_eq!(e.hessian.len(), system.pattern().nnz()); // one pattern: the union of the couplings
+//! ```
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 

@@ -25,7 +25,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some(p) => PathBuf::from(p),
         None => {
             // A 16×8 strip, written as the user's own file would be.
-            let g = hinge_core::grid::grid(16, 8, 0.4, 0.2, hinge_core::grid::Diagonal::Alternating)?;
+            let g =
+                hinge_core::grid::grid(16, 8, 0.4, 0.2, hinge_core::grid::Diagonal::Alternating)?;
             let p = dir.join("input.obj");
             write_obj(&p, g.positions(), g.triangles())?;
             p
@@ -36,7 +37,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map_or_else(|| dir.join("output.obj"), PathBuf::from);
     let rest = read_obj(&input)?;
     let n = rest.n_vertices();
-    println!("{}: {n} vertices, {} triangles", input.display(), rest.n_triangles());
+    println!(
+        "{}: {n} vertices, {} triangles",
+        input.display(),
+        rest.n_triangles()
+    );
 
     let (young, h, nu, density) = (1e6, 1e-3, 0.3, 0.3);
     let k = stiffness_from_material(young, h, nu);
@@ -51,7 +56,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Box::new(Gravity::new(masses.clone(), Vector3::new(0.0, 0.0, -9.81))?),
     ];
     let mut system = System::new(n, terms)?;
-    let xmin = rest.positions().iter().map(|p| p.x).fold(f64::INFINITY, f64::min);
+    let xmin = rest
+        .positions()
+        .iter()
+        .map(|p| p.x)
+        .fold(f64::INFINITY, f64::min);
     let pinned: Vec<usize> = (0..n)
         .filter(|&v| rest.positions()[v].x <= xmin + 1e-9)
         .collect();

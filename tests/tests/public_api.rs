@@ -136,9 +136,7 @@ fn user_energy_composes_and_newton_minimises_it() {
             c: 3.0,
             diag: Vec::new(),
         }),
-        Box::new(
-            Gravity::new(lumped_masses(&mesh, 1.0), Vector3::new(0.0, 0.0, -1.0)).unwrap(),
-        ),
+        Box::new(Gravity::new(lumped_masses(&mesh, 1.0), Vector3::new(0.0, 0.0, -1.0)).unwrap()),
     ];
     let mut system = System::new(n, terms).unwrap();
     assert_eq!(system.term_names(), ["bending", "anchors", "gravity"]);
@@ -155,12 +153,20 @@ fn user_energy_composes_and_newton_minimises_it() {
         let mut p = rest.clone();
         p[d] += h;
         let ep = system
-            .evaluate(p.as_vectors().unwrap(), Request::VALUE, Parallelism::Sequential)
+            .evaluate(
+                p.as_vectors().unwrap(),
+                Request::VALUE,
+                Parallelism::Sequential,
+            )
             .unwrap()
             .energy;
         p[d] -= 2.0 * h;
         let em = system
-            .evaluate(p.as_vectors().unwrap(), Request::VALUE, Parallelism::Sequential)
+            .evaluate(
+                p.as_vectors().unwrap(),
+                Request::VALUE,
+                Parallelism::Sequential,
+            )
             .unwrap()
             .energy;
         let fd = (ep - em) / (2.0 * h);
@@ -182,7 +188,11 @@ fn user_energy_composes_and_newton_minimises_it() {
         .unwrap()
         .gradient;
     let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
-    assert!(norm < 1e-7, "‖∇E‖ = {norm} after {} iterations", stats.iterations);
+    assert!(
+        norm < 1e-7,
+        "‖∇E‖ = {norm} after {} iterations",
+        stats.iterations
+    );
 }
 
 #[test]
@@ -219,8 +229,18 @@ fn hessian_into_caller_csr_and_faer_and_own_pool() {
     };
     let (one, three) = (run(1), run(3));
     assert_eq!(one.energy.to_bits(), three.energy.to_bits());
-    assert!(one.gradient.iter().zip(&three.gradient).all(|(a, b)| a.to_bits() == b.to_bits()));
-    assert!(one.hessian.iter().zip(&three.hessian).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert!(
+        one.gradient
+            .iter()
+            .zip(&three.gradient)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
+    assert!(
+        one.hessian
+            .iter()
+            .zip(&three.hessian)
+            .all(|(a, b)| a.to_bits() == b.to_bits())
+    );
 }
 
 #[test]
@@ -250,10 +270,26 @@ fn hinge_linear_solvers_on_a_user_matrix() {
     solver.solve(&mut x).unwrap();
     let mut ax = vec![0.0; n];
     a.mul(&values, &x, &mut ax);
-    let err = ax.iter().zip(&b).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
+    let err = ax
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| (p - q).abs())
+        .fold(0.0, f64::max);
     assert!(err < 1e-13, "{err}");
     // An indefinite matrix is a typed error from LLᵀ, not a panic.
     let mut bad = values.clone();
     bad[0] = -3.0;
     assert!(solver.factor(&bad).is_err());
+}
+
+#[test]
+fn energy_parameters_serialize_with_the_serde_feature() {
+    use hinge_energies::bending::ViscousDamping;
+    let text = serde_json::to_string(&TanBending { k: 0.25 }).unwrap();
+    assert_eq!(text, r#"{"k":0.25}"#);
+    let back: TanBending = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, TanBending { k: 0.25 });
+    let d: ViscousDamping = serde_json::from_str(r#"{"kd":2.0}"#).unwrap();
+    assert_eq!(d.kd, 2.0);
+    assert!(serde_json::from_str::<TanBending>(r#"{"stiffness":1}"#).is_err());
 }
