@@ -21,7 +21,7 @@ fn tmp(name: &str) -> PathBuf {
 
 fn data(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../tests/data")
         .join(name)
         .display()
         .to_string()

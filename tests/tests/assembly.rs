@@ -10,7 +10,7 @@ use hinge_tests::*;
 
 fn data(name: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("data")
         .join(name)
 }
 
