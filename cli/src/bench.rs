@@ -140,12 +140,33 @@ fn psi_rows(runs: usize) -> Vec<Row> {
 
 /// Solver rows: one Newton system `M/Δt² + H` of a cloth (tan bending + springs, Δt = 1/60 s, wave-deformed
 /// state) per backend, with analyze / factor / solve times (medians).
+/// The Newton system of one implicit-Euler step at `x` (Δt = 1/60 s, lumped masses of density 0.1, no pins):
+/// `M/Δt² + H` on the reduced pattern, its values, and the right-hand side `−∇E`.
+pub(crate) fn newton_system(
+    sys: &mut hinge_core::energy::System,
+    rest: &hinge_core::TriMesh,
+    x: &[hinge_core::nalgebra::Vector3<f64>],
+) -> Result<(hinge_solver::newton::Reduced, Vec<f64>, Vec<f64>), String> {
+    use hinge_energies::gravity::lumped_masses;
+    use hinge_solver::newton::Reduced;
+    let e = sys
+        .evaluate(x, Request::ALL, Parallelism::Rayon)
+        .map_err(|e| e.to_string())?;
+    let red = Reduced::new(sys.pattern(), &vec![true; 3 * rest.n_vertices()]);
+    let masses = lumped_masses(rest, 0.1);
+    let dt = 1.0 / 60.0;
+    let mut values: Vec<f64> = red.source.iter().map(|&k| e.hessian[k]).collect();
+    for (r, &d) in red.diag.iter().enumerate() {
+        values[d] += masses[red.dofs[r] / 3] / (dt * dt);
+    }
+    let rhs: Vec<f64> = red.dofs.iter().map(|&d| -e.gradient[d]).collect();
+    Ok((red, values, rhs))
+}
+
 fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
     use hinge_core::energy::{Energy, HingeTerm, System};
-    use hinge_energies::gravity::lumped_masses;
     use hinge_energies::spring::MassSpring;
     use hinge_solver::linear::{ChebyshevJacobi, FaerLlt, FaerLu, LinearSolver, PcgJacobi};
-    use hinge_solver::newton::Reduced;
     let rest = unit_grid(n).map_err(|e| e.to_string())?;
     let x = wave(rest.positions());
     let nv = rest.n_vertices();
@@ -156,17 +177,7 @@ fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
         Box::new(HingeTerm::new("bending", bending, Method::Refactored)),
     ];
     let mut sys = System::new(nv, terms).map_err(|e| e.to_string())?;
-    let e = sys
-        .evaluate(&x, Request::ALL, Parallelism::Rayon)
-        .map_err(|e| e.to_string())?;
-    let red = Reduced::new(sys.pattern(), &vec![true; 3 * nv]);
-    let masses = lumped_masses(&rest, 0.1);
-    let dt = 1.0 / 60.0;
-    let mut values: Vec<f64> = red.source.iter().map(|&k| e.hessian[k]).collect();
-    for (r, &d) in red.diag.iter().enumerate() {
-        values[d] += masses[red.dofs[r] / 3] / (dt * dt);
-    }
-    let rhs: Vec<f64> = red.dofs.iter().map(|&d| -e.gradient[d]).collect();
+    let (red, values, rhs) = newton_system(&mut sys, &rest, &x)?;
     let all = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut rows = Vec::new();
     type Make = Box<dyn Fn() -> Box<dyn LinearSolver>>;

@@ -114,6 +114,32 @@ fn timed(mut f: impl FnMut() -> Result<(), String>) -> Result<f64, String> {
     Ok(t[t.len() / 2])
 }
 
+/// Median seconds of forces + Hessian + assembly (no energy value) by `method` on one thread.
+fn time_method(
+    model: &BendingModel<TanBending>,
+    x: &[Vector3<f64>],
+    method: Method,
+) -> Result<f64, String> {
+    let (mut out, mut scratch) = (model.new_output(), model.new_scratch());
+    let request = Request {
+        value: false,
+        gradient: true,
+        hessian: true,
+    };
+    timed(|| {
+        model
+            .evaluate_into(
+                x,
+                request,
+                method,
+                Parallelism::Sequential,
+                &mut scratch,
+                &mut out,
+            )
+            .map_err(err)
+    })
+}
+
 fn quantiles(v: &[f64]) -> (f64, f64, f64) {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
@@ -179,25 +205,7 @@ fn accuracy(cells: usize, frames: usize, every: usize) -> Result<Value, String> 
     let last = snapshots.last().ok_or("no snapshot")?;
     let mut methods = serde_json::Map::new();
     for (i, &method) in METHODS.iter().enumerate() {
-        let mut out = model.new_output();
-        let mut scratch = model.new_scratch();
-        let req = Request {
-            value: false,
-            gradient: true,
-            hessian: true,
-        };
-        let sec = timed(|| {
-            model
-                .evaluate_into(
-                    last,
-                    req,
-                    method,
-                    Parallelism::Sequential,
-                    &mut scratch,
-                    &mut out,
-                )
-                .map_err(err)
-        })?;
+        let sec = time_method(&model, last, method)?;
         let (med, p99, max) = quantiles(&per_method[i]);
         methods.insert(
             method.name().into(),
@@ -219,37 +227,17 @@ fn accuracy(cells: usize, frames: usize, every: usize) -> Result<Value, String> 
 /// n×n unit grid under the wave deformation.
 fn cost(cells: usize, with_autodiff: bool) -> Result<Value, String> {
     use hinge_core::energy::{Energy, HingeTerm, System};
-    use hinge_energies::gravity::lumped_masses;
     use hinge_energies::membrane::StvkMembrane;
     use hinge_solver::linear::{FaerLlt, LinearSolver};
-    use hinge_solver::newton::Reduced;
     let rest: TriMesh = unit_grid(cells).map_err(err)?;
     let x = wave(rest.positions());
     let model = BendingModel::new(&rest, TanBending { k: 1e-3 }).map_err(err)?;
-    let req = Request {
-        value: false,
-        gradient: true,
-        hessian: true,
-    };
     let mut methods = serde_json::Map::new();
     for method in METHODS {
         if method == Method::Autodiff && !with_autodiff {
             continue;
         }
-        let mut out = model.new_output();
-        let mut scratch = model.new_scratch();
-        let sec = timed(|| {
-            model
-                .evaluate_into(
-                    &x,
-                    req,
-                    method,
-                    Parallelism::Sequential,
-                    &mut scratch,
-                    &mut out,
-                )
-                .map_err(err)
-        })?;
+        let sec = time_method(&model, &x, method)?;
         methods.insert(method.name().into(), json!(sec));
     }
     // The Newton system of implicit Euler: bending + membrane + M/Δt².
@@ -259,17 +247,7 @@ fn cost(cells: usize, with_autodiff: bool) -> Result<Value, String> {
         Box::new(HingeTerm::new("bending", model.clone(), Method::Refactored)),
     ];
     let mut sys = System::new(nv, terms).map_err(err)?;
-    let e = sys
-        .evaluate(&x, Request::ALL, Parallelism::Rayon)
-        .map_err(err)?;
-    let red = Reduced::new(sys.pattern(), &vec![true; 3 * nv]);
-    let masses = lumped_masses(&rest, 0.1);
-    let dt = 1.0 / 60.0;
-    let mut values: Vec<f64> = red.source.iter().map(|&k| e.hessian[k]).collect();
-    for (r, &d) in red.diag.iter().enumerate() {
-        values[d] += masses[red.dofs[r] / 3] / (dt * dt);
-    }
-    let rhs: Vec<f64> = red.dofs.iter().map(|&d| -e.gradient[d]).collect();
+    let (red, values, rhs) = crate::bench::newton_system(&mut sys, &rest, &x)?;
     let mut solver = FaerLlt::default();
     solver.analyze(&red.csc).map_err(err)?;
     let solve = timed(|| {

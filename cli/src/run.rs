@@ -87,6 +87,19 @@ pub struct RunSummary {
     pub final_gradient_norm: f64,
 }
 
+impl RunSummary {
+    /// Adds the system's per-term evaluation times (taken, so they are counted once).
+    fn add_timings(&mut self, system: &mut System) {
+        for (name, sec) in system.take_timings() {
+            if name == "bending" {
+                self.bending_seconds += sec;
+            } else {
+                self.other_energy_seconds += sec;
+            }
+        }
+    }
+}
+
 /// The system a scene simulates, with its masses, pins, solver and Newton parameters.
 pub struct Built {
     /// Bending + membrane + gravity + contact.
@@ -249,13 +262,7 @@ pub fn equilibrium(
         max_speed: 0.0,
         final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
     };
-    for (name, sec) in system.take_timings() {
-        if name == "bending" {
-            summary.bending_seconds += sec;
-        } else {
-            summary.other_energy_seconds += sec;
-        }
-    }
+    summary.add_timings(&mut system);
     if let Some(dir) = out {
         write_obj(dir.join("static.obj"), &x, rest.triangles()).map_err(|e| e.to_string())?;
     }
@@ -333,13 +340,7 @@ pub fn simulate(
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
         summary.line_search_steps += stats.line_search_steps;
         summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
-        for (name, sec) in system.take_timings() {
-            if name == "bending" {
-                summary.bending_seconds += sec;
-            } else {
-                summary.other_energy_seconds += sec;
-            }
-        }
+        summary.add_timings(&mut system);
         if let Some(dir) = out {
             write_obj(
                 dir.join(format!("frame_{frame:04}.obj")),

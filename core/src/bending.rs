@@ -669,46 +669,30 @@ impl<P: HingePsi> BendingModel<P> {
         // Pass 1: per hinge.
         let need_grad = request.gradient || (request.hessian && !P::D2_IS_ZERO);
         let states = &mut scratch.hinges[..];
+        // The lowest-numbered failing hinge of a run of states (in state order), so that the error reported
+        // does not depend on the thread count.
+        let first_in = |states: &mut [HingeState], order: &[u32]| {
+            states
+                .iter_mut()
+                .zip(order)
+                .filter_map(|(s, &h)| {
+                    self.hinge_pass(h as usize, x, need_grad, s)
+                        .err()
+                        .map(|e| (h, e))
+                })
+                .min_by_key(|(h, _)| *h)
+        };
         let first_error = match par {
-            Parallelism::Sequential => states
-                .iter_mut()
-                .zip(&self.state_order)
-                .filter_map(|(s, &h)| {
-                    self.hinge_pass(h as usize, x, need_grad, s)
-                        .err()
-                        .map(|e| (h, e))
-                })
-                .min_by_key(|(h, _)| *h)
-                .map(|(_, e)| e),
-            #[cfg(not(feature = "rayon"))]
-            Parallelism::Rayon => states
-                .iter_mut()
-                .zip(&self.state_order)
-                .filter_map(|(s, &h)| {
-                    self.hinge_pass(h as usize, x, need_grad, s)
-                        .err()
-                        .map(|e| (h, e))
-                })
-                .min_by_key(|(h, _)| *h)
-                .map(|(_, e)| e),
             #[cfg(feature = "rayon")]
             Parallelism::Rayon => states
                 .par_chunks_mut(HINGE_CHUNK)
                 .zip(self.state_order.par_chunks(HINGE_CHUNK))
-                .filter_map(|(states, order)| {
-                    states
-                        .iter_mut()
-                        .zip(order)
-                        .filter_map(|(s, &h)| {
-                            self.hinge_pass(h as usize, x, need_grad, s)
-                                .err()
-                                .map(|e| (h, e))
-                        })
-                        .min_by_key(|(h, _)| *h)
-                })
-                .min_by_key(|(h, _)| *h)
-                .map(|(_, e)| e),
-        };
+                .filter_map(|(states, order)| first_in(states, order))
+                .min_by_key(|(h, _)| *h),
+            // Sequential; without the rayon feature `Parallelism::Rayon` runs here too.
+            _ => first_in(states, &self.state_order),
+        }
+        .map(|(_, e)| e);
         if let Some(e) = first_error {
             return Err(e);
         }

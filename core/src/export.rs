@@ -45,49 +45,10 @@ pub type CsrArrays = (Vec<usize>, Vec<usize>, Vec<f64>);
 /// [`EvalError::BufferLength`] when `values` does not fit the pattern.
 pub fn full_csr(pattern: &SymmetricPattern, values: &[f64]) -> Result<CsrArrays, EvalError> {
     check_len(pattern, values)?;
-    let n = pattern.dim();
-    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-    // Row r of the full matrix = column r of the lower part (entries below/at the diagonal, as upper) plus row
-    // r of the lower part. Count, then fill in column order so each row comes out sorted.
-    let mut count = vec![0usize; n + 1];
-    for c in 0..n {
-        for &r in &ri[cp[c]..cp[c + 1]] {
-            count[r + 1] += 1;
-            if r != c {
-                count[c + 1] += 1;
-            }
-        }
-    }
-    for i in 0..n {
-        count[i + 1] += count[i];
-    }
-    let row_ptr = count.clone();
-    let mut next = count;
-    let mut col_idx = vec![0usize; row_ptr[n]];
-    let mut vals = vec![0.0; row_ptr[n]];
-    // Entries (r, c) with c ≤ r, visited by increasing c: row r receives its columns in increasing order
-    // for c < r; row c receives (c, r') for r' ≥ c after all its smaller columns. Two passes keep order.
-    for c in 0..n {
-        for k in cp[c]..cp[c + 1] {
-            let r = ri[k];
-            // (r, c) in row r: columns c < r arrive in increasing c.
-            let slot = next[r];
-            col_idx[slot] = c;
-            vals[slot] = values[k];
-            next[r] += 1;
-        }
-        for k in cp[c]..cp[c + 1] {
-            let r = ri[k];
-            if r != c {
-                // (c, r) in row c: after the diagonal, rows increasing.
-                let slot = next[c];
-                col_idx[slot] = r;
-                vals[slot] = values[k];
-                next[c] += 1;
-            }
-        }
-    }
-    Ok((row_ptr, col_idx, vals))
+    let layout = CsrLayout::new(pattern);
+    let mut vals = vec![0.0; layout.nnz()];
+    layout.scatter(values, &mut vals)?;
+    Ok((layout.row_ptr, layout.col_idx, vals))
 }
 
 /// The full symmetric CSR structure of a pattern (both triangles, columns sorted per row), built once, and
@@ -149,7 +110,9 @@ impl CsrLayout {
         let nnz = ri.len();
         let mut col_idx = vec![0usize; row_ptr[n]];
         let (mut lower, mut upper) = (vec![0usize; nnz], vec![usize::MAX; nnz]);
-        // Same visiting order as `full_csr`: rows come out with sorted columns.
+        // Row r of the full matrix = row r of the lower part plus column r of it (as the upper part). Visiting
+        // entries (r, c), c ≤ r, by increasing c, row r receives its columns c < r in increasing order, then
+        // row c receives (c, r') for r' > c after all its smaller columns: every row comes out sorted.
         for c in 0..n {
             for k in cp[c]..cp[c + 1] {
                 let r = ri[k];

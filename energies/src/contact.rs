@@ -119,10 +119,7 @@ impl Energy for Contact {
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        crate::util::same_size(pattern, self.n_vertices)?;
-        self.diag = (0..self.n_vertices)
-            .map(|v| crate::util::slot(pattern, v, v))
-            .collect::<Result<_, _>>()?;
+        self.diag = crate::util::diagonal_slots(pattern, self.n_vertices)?;
         Ok(())
     }
 

@@ -74,10 +74,7 @@ impl Energy for Drag {
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        crate::util::same_size(pattern, self.masses.len())?;
-        self.diag = (0..self.masses.len())
-            .map(|v| crate::util::slot(pattern, v, v))
-            .collect::<Result<_, _>>()?;
+        self.diag = crate::util::diagonal_slots(pattern, self.masses.len())?;
         Ok(())
     }
 

@@ -60,6 +60,12 @@ pub(crate) mod util {
         })
     }
 
+    /// The diagonal block slots of all `n` vertices, after checking the pattern's size.
+    pub fn diagonal_slots(pattern: &SymmetricPattern, n: usize) -> Result<Vec<usize>, EvalError> {
+        same_size(pattern, n)?;
+        (0..n).map(|v| slot(pattern, v, v)).collect()
+    }
+
     /// Checks the vertex count of a pattern.
     pub fn same_size(pattern: &SymmetricPattern, n: usize) -> Result<(), EvalError> {
         if pattern.n_vertices() == n {
