@@ -2,6 +2,9 @@
 //! `F(x) = Σ_i m_i |x_i − x̂_i|² / (2Δt²) + E(x)` with `x̂ = x⁰ + Δt v⁰` (lecture P14–P18), with pinned
 //! vertices eliminated from the system, a backtracking Armijo line search on F, and inertia correction for
 //! the indefinite hinge Hessian: the diagonal shift is raised until the Cholesky factorization succeeds.
+//! When the line search fails — a near-singular Hessian (say a sheet pinned along one row of vertices, free
+//! to swing about it) gives an enormous step along the soft mode — the iteration is retried with a
+//! Levenberg–Marquardt shift raised 100-fold each time ([`NewtonParams::damped_retries`]).
 //! A failed solve leaves the caller's state untouched and reports diagnostics.
 
 use std::time::Instant;
@@ -81,6 +84,10 @@ pub struct NewtonParams {
     /// Baraff–Witkin mode: take exactly one (line-searched) Newton step per solve and accept it, converged
     /// or not — the classic single-iteration implicit Euler.
     pub single_iteration: bool,
+    /// When the line search fails (a near-singular Hessian gives a huge step along a soft mode), retry the
+    /// iteration this many times with a diagonal shift raised 100-fold each time (Levenberg–Marquardt
+    /// damping: shorter, more gradient-like steps) before reporting [`SolverError::LineSearch`].
+    pub damped_retries: usize,
 }
 
 impl Default for NewtonParams {
@@ -94,6 +101,7 @@ impl Default for NewtonParams {
             initial_shift: 1e-8,
             max_shifts: 40,
             single_iteration: false,
+            damped_retries: 8,
         }
     }
 }
@@ -354,88 +362,103 @@ impl Newton {
                     self.values[dk] += i.masses[self.reduced.dofs[r] / 3] / (i.dt * i.dt);
                 }
             }
-            let max_diag = self
-                .reduced
-                .diag
-                .iter()
-                .map(|&k| self.values[k].abs())
-                .fold(0.0, f64::max)
-                .max(f64::MIN_POSITIVE);
-            // Inertia correction: try the exact Hessian first; if it is not positive definite, shift the diagonal,
-            // starting near the last shift that worked, and raise it until the factorization succeeds. Trying 0
-            // first keeps the final iterations exact Newton steps (quadratic convergence).
-            let last_shift = shift;
-            shift = 0.0;
-            let mut attempts = 0;
-            loop {
-                let mut vals = self.values.clone();
-                if shift > 0.0 {
-                    for &k in &self.reduced.diag {
-                        vals[k] += shift;
+            // Levenberg–Marquardt retries: a failed line search raises a minimum diagonal shift.
+            let mut damping = 0.0_f64;
+            let mut retries = 0;
+            let (d, alpha, accepted, trial) = loop {
+                let max_diag = self
+                    .reduced
+                    .diag
+                    .iter()
+                    .map(|&k| self.values[k].abs())
+                    .fold(0.0, f64::max)
+                    .max(f64::MIN_POSITIVE);
+                // Inertia correction: try the exact Hessian first; if it is not positive definite, shift the diagonal,
+                // starting near the last shift that worked, and raise it until the factorization succeeds. Trying 0
+                // first keeps the final iterations exact Newton steps (quadratic convergence).
+                let last_shift = shift;
+                shift = damping;
+                let mut attempts = 0;
+                loop {
+                    let mut vals = self.values.clone();
+                    if shift > 0.0 {
+                        for &k in &self.reduced.diag {
+                            vals[k] += shift;
+                        }
+                    }
+                    let t = Instant::now();
+                    let r = self.solver.factor(&vals);
+                    stats.factor_seconds += t.elapsed().as_secs_f64();
+                    match r {
+                        Ok(()) => break,
+                        Err(LinearError::NotPositiveDefinite { .. }) if attempts < p.max_shifts => {
+                            attempts += 1;
+                            shift = if shift == 0.0 {
+                                (p.initial_shift * max_diag).max(0.25 * last_shift)
+                            } else {
+                                shift * 4.0
+                            };
+                            stats.max_shift = stats.max_shift.max(shift);
+                        }
+                        Err(source) => {
+                            return Err(SolverError::Linear {
+                                source,
+                                stats: Box::new(stats),
+                            });
+                        }
                     }
                 }
+                let mut d: Vec<f64> = g.iter().map(|v| -v).collect();
                 let t = Instant::now();
-                let r = self.solver.factor(&vals);
-                stats.factor_seconds += t.elapsed().as_secs_f64();
-                match r {
-                    Ok(()) => break,
-                    Err(LinearError::NotPositiveDefinite { .. }) if attempts < p.max_shifts => {
-                        attempts += 1;
-                        shift = if shift == 0.0 {
-                            (p.initial_shift * max_diag).max(0.25 * last_shift)
-                        } else {
-                            shift * 4.0
-                        };
-                        stats.max_shift = stats.max_shift.max(shift);
-                    }
-                    Err(source) => {
-                        return Err(SolverError::Linear {
-                            source,
-                            stats: Box::new(stats),
-                        });
-                    }
+                let r = self.solver.solve(&mut d);
+                stats.solve_seconds += t.elapsed().as_secs_f64();
+                r.map_err(|source| SolverError::Linear {
+                    source,
+                    stats: Box::new(stats.clone()),
+                })?;
+                let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
+                if !(slope < 0.0) {
+                    // Not a descent direction (possible with an indefinite backend): fall back to −g.
+                    d = g.iter().map(|v| -v).collect();
                 }
-            }
-            let mut d: Vec<f64> = g.iter().map(|v| -v).collect();
-            let t = Instant::now();
-            let r = self.solver.solve(&mut d);
-            stats.solve_seconds += t.elapsed().as_secs_f64();
-            r.map_err(|source| SolverError::Linear {
-                source,
-                stats: Box::new(stats.clone()),
-            })?;
-            let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
-            if !(slope < 0.0) {
-                // Not a descent direction (possible with an indefinite backend): fall back to −g.
-                d = g.iter().map(|v| -v).collect();
-            }
-            let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
-            // Backtracking line search on F.
-            let mut alpha = 1.0;
-            let mut accepted = None;
-            let mut trial = cur.clone();
-            for _ in 0..=p.max_line_search {
-                for (k, &dof) in dofs.iter().enumerate() {
-                    trial[dof / 3][dof % 3] = cur[dof / 3][dof % 3] + alpha * d[k];
+                let slope: f64 = g.iter().zip(&d).map(|(a, b)| a * b).sum();
+                // Backtracking line search on F.
+                let mut alpha = 1.0;
+                let mut accepted = None;
+                let mut trial = cur.clone();
+                for _ in 0..=p.max_line_search {
+                    for (k, &dof) in dofs.iter().enumerate() {
+                        trial[dof / 3][dof % 3] = cur[dof / 3][dof % 3] + alpha * d[k];
+                    }
+                    // Near convergence the predicted decrease drops below the rounding of F: then accept any trial
+                    // that does not increase F beyond that rounding, instead of halving against noise.
+                    let noise = 8.0 * f64::EPSILON * f.abs().max(f64::MIN_POSITIVE);
+                    let target = if (p.armijo * alpha * slope).abs() <= noise {
+                        f + noise
+                    } else {
+                        f + p.armijo * alpha * slope
+                    };
+                    if let Ok(ft) = eval(objective, &trial, Request::VALUE, &mut out, &mut stats)
+                        && ft.is_finite()
+                        && ft <= target
+                    {
+                        accepted = Some(ft);
+                        break;
+                    }
+                    alpha *= 0.5;
+                    stats.line_search_steps += 1;
                 }
-                // Near convergence the predicted decrease drops below the rounding of F: then accept any trial
-                // that does not increase F beyond that rounding, instead of halving against noise.
-                let noise = 8.0 * f64::EPSILON * f.abs().max(f64::MIN_POSITIVE);
-                let target = if (p.armijo * alpha * slope).abs() <= noise {
-                    f + noise
+                if accepted.is_some() || retries >= p.damped_retries {
+                    break (d, alpha, accepted, trial);
+                }
+                retries += 1;
+                damping = if damping == 0.0 {
+                    (1e-4 * max_diag).max(4.0 * shift)
                 } else {
-                    f + p.armijo * alpha * slope
+                    damping * 100.0
                 };
-                if let Ok(ft) = eval(objective, &trial, Request::VALUE, &mut out, &mut stats)
-                    && ft.is_finite()
-                    && ft <= target
-                {
-                    accepted = Some(ft);
-                    break;
-                }
-                alpha *= 0.5;
-                stats.line_search_steps += 1;
-            }
+                stats.max_shift = stats.max_shift.max(damping);
+            };
             stats.iterations = it + 1;
             let Some(_) = accepted else {
                 return Err(SolverError::LineSearch {

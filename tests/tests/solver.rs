@@ -374,3 +374,62 @@ fn baraff_witkin_mode_takes_one_iteration() {
     assert_eq!(stats.iterations, 1);
     assert!(stats.gradient_norms[1] < stats.gradient_norms[0]);
 }
+
+#[test]
+fn damped_retries_rescue_a_near_singular_newton_step() {
+    // A bending + membrane sheet pinned along a single row of vertices: swinging about that row costs no
+    // energy at the flat start, so the exact Newton step along it is enormous and no halving of it decreases
+    // F. Without Levenberg–Marquardt retries Newton fails at once; with them it converges.
+    use hinge_energies::bending::TanBending;
+    use hinge_energies::membrane::StvkMembrane;
+    let rest = grid(8, 8, 1.0, 1.0, Diagonal::Alternating).unwrap();
+    let n = rest.n_vertices();
+    let make = || {
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(HingeTerm::new(
+                "bending",
+                BendingModel::new(&rest, TanBending { k: 1e-2 }).unwrap(),
+                Method::Refactored,
+            )),
+            Box::new(StvkMembrane::new(&rest, 1e4, 0.3, 1e-3).unwrap()),
+            Box::new(
+                Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
+            ),
+        ];
+        System::new(n, terms).unwrap()
+    };
+    let pins = Pins::new(n, (0..=8).collect()).unwrap();
+    let solve = |retries: usize| {
+        let mut sys = make();
+        let params = NewtonParams {
+            damped_retries: retries,
+            max_iterations: 500,
+            ..NewtonParams::default()
+        };
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let mut x = rest.positions().to_vec();
+        let r = newton.minimize(&mut sys, &mut x, None);
+        (r, x)
+    };
+    let (without, x_failed) = solve(0);
+    assert!(
+        matches!(without, Err(SolverError::LineSearch { .. })),
+        "{without:?}"
+    );
+    assert_eq!(
+        x_failed,
+        rest.positions(),
+        "a failed solve leaves x untouched"
+    );
+    let (with, x) = solve(NewtonParams::default().damped_retries);
+    let stats = with.unwrap();
+    println!(
+        "with damped retries: {} iterations, max shift {:.2e}, final ‖∇F‖ {:.2e}",
+        stats.iterations,
+        stats.max_shift,
+        stats.gradient_norms.last().unwrap()
+    );
+    assert!(stats.max_shift > 0.0);
+    // The sheet hangs below the pinned row.
+    assert!(x[n - 1].z < -0.5, "{}", x[n - 1]);
+}
