@@ -108,8 +108,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .ok_or("missing diagonal")
         })
         .collect::<Result<_, _>>()?;
-    let mut out = model.new_output();
+    // The user's own buffers: forces/gradient (3n) and the lower-triangle Hessian values hinge fills.
+    let mut grad = vec![0.0; 3 * n];
+    let mut lower = vec![0.0; model.pattern().nnz()];
     let mut scratch = model.new_scratch();
+    let mut bending_energy = 0.0;
     // The user's springs on the mesh edges, with their CSR slots found once (columns are sorted per row).
     let slot = |r: usize, c: usize| -> Result<usize, &'static str> {
         let row = &hessian.col_idx[hessian.row_ptr[r]..hessian.row_ptr[r + 1]];
@@ -162,18 +165,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut cg_total = 0;
         for _newton in 0..10 {
             // hinge evaluates on the user's flat buffer (viewed as vectors, no copy) …
-            model.evaluate_into(
+            bending_energy = model.evaluate_to(
                 x.as_vectors()?,
                 Request::ALL,
                 Method::Refactored,
                 Parallelism::Rayon,
                 &mut scratch,
-                &mut out,
+                &mut grad,
+                &mut lower,
             )?;
             // … and the Hessian goes into the user's CSR values.
-            layout.scatter(&out.hessian, &mut hessian.values)?;
+            layout.scatter(&lower, &mut hessian.values)?;
             // The user's springs: ½ ks (l − L)², Hessian ks [d̂d̂ᵀ + max(0, 1 − L/l)(I − d̂d̂ᵀ)] (PSD).
-            let mut grad = out.gradient.clone();
             for (a, b, len, slots) in &springs {
                 let d: Vec<f64> = (0..3).map(|k| x[3 * a + k] - x[3 * b + k]).collect();
                 let l = d.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -224,7 +227,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!(
                 "step {:>2}: bending energy {:.4e}, lowest z {tip:.4}, CG iterations {cg_total}",
                 step + 1,
-                out.energy
+                bending_energy
             );
         }
     }

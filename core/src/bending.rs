@@ -512,6 +512,40 @@ impl<P: HingePsi> BendingModel<P> {
         }
     }
 
+    /// Evaluates into the caller's own buffers (overwriting the requested ones) and returns the energy (0 when
+    /// not requested): `gradient` has `3n` entries in the layout `x0, y0, z0, x1, …` (forces are its
+    /// negative), `hessian` has [`SymmetricPattern::nnz`] values in the pattern's lower-CSC order (scatter them
+    /// into your CSR arrays with [`crate::export::CsrLayout`]). Unrequested buffers may be empty.
+    ///
+    /// # Errors
+    /// As [`BendingModel::evaluate_into`], and [`EvalError::BufferLength`] for a requested buffer of the
+    /// wrong length.
+    #[allow(clippy::too_many_arguments)]
+    pub fn evaluate_to(
+        &self,
+        x: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+        par: Parallelism,
+        scratch: &mut Scratch,
+        gradient: &mut [f64],
+        hessian: &mut [f64],
+    ) -> Result<f64, EvalError> {
+        let mut energy = 0.0;
+        self.evaluate_impl(
+            x,
+            request,
+            method,
+            par,
+            scratch,
+            &mut energy,
+            gradient,
+            hessian,
+            false,
+        )?;
+        Ok(energy)
+    }
+
     /// Convenience: evaluates into fresh buffers.
     ///
     /// # Errors

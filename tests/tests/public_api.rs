@@ -293,3 +293,56 @@ fn energy_parameters_serialize_with_the_serde_feature() {
     assert_eq!(d.kd, 2.0);
     assert!(serde_json::from_str::<TanBending>(r#"{"stiffness":1}"#).is_err());
 }
+
+#[test]
+fn evaluate_to_fills_the_callers_buffers() {
+    let (rest, bent, tris) = user_arrays();
+    let mesh = TriMesh::from_arrays(&rest[..], &tris[..]).unwrap();
+    let model = BendingModel::new(&mesh, TanBending { k: 1.0 }).unwrap();
+    let x = bent.as_vectors().unwrap();
+    let reference = model
+        .evaluate(x, Request::ALL, Method::Refactored, Parallelism::Sequential)
+        .unwrap();
+    let mut scratch = model.new_scratch();
+    // Stale values in the caller's buffers are overwritten.
+    let mut grad = vec![7.0; bent.len()];
+    let mut lower = vec![7.0; model.pattern().nnz()];
+    let e = model
+        .evaluate_to(
+            x,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+            &mut scratch,
+            &mut grad,
+            &mut lower,
+        )
+        .unwrap();
+    assert_eq!(e, reference.energy);
+    assert_eq!(grad, reference.gradient);
+    assert_eq!(lower, reference.hessian);
+    // A gradient-only request may pass an empty Hessian buffer; a short buffer is a typed error.
+    model
+        .evaluate_to(
+            x,
+            Request::GRADIENT,
+            Method::Refactored,
+            Parallelism::Sequential,
+            &mut scratch,
+            &mut grad,
+            &mut [],
+        )
+        .unwrap();
+    let err = model
+        .evaluate_to(
+            x,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+            &mut scratch,
+            &mut grad[1..],
+            &mut lower,
+        )
+        .unwrap_err();
+    assert!(err.to_string().contains("gradient"), "{err}");
+}
