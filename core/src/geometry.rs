@@ -74,13 +74,7 @@ impl TriangleFrame {
         let inv_2a = 1.0 / double_area;
         let normal = cross * inv_2a;
         let length = [len_sq[0].sqrt(), len_sq[1].sqrt(), len_sq[2].sqrt()];
-        // Three divisions instead of twelve: 1/l once, then products (each within an ulp of the quotient).
-        let inv_length = [1.0 / length[0], 1.0 / length[1], 1.0 / length[2]];
-        let unit_edge = [
-            e[0] * inv_length[0],
-            e[1] * inv_length[1],
-            e[2] * inv_length[2],
-        ];
+        let unit_edge = [e[0] / length[0], e[1] / length[1], e[2] / length[2]];
         let cos_angle = [
             -unit_edge[1].dot(&unit_edge[2]),
             -unit_edge[2].dot(&unit_edge[0]),
@@ -91,11 +85,7 @@ impl TriangleFrame {
             double_area,
             unit_edge,
             length,
-            inv_length_sq: [
-                inv_length[0] * inv_length[0],
-                inv_length[1] * inv_length[1],
-                inv_length[2] * inv_length[2],
-            ],
+            inv_length_sq: [1.0 / len_sq[0], 1.0 / len_sq[1], 1.0 / len_sq[2]],
             cos_angle,
             inv_altitude: [length[0] * inv_2a, length[1] * inv_2a, length[2] * inv_2a],
             edge_normal: [
