@@ -122,7 +122,9 @@ impl Request {
 
 /// Where the work runs. With [`Parallelism::Rayon`] the passes run on the current rayon pool: call
 /// [`BendingModel::evaluate`] inside `pool.install(..)` to choose the thread count. Results are bitwise
-/// identical either way.
+/// identical either way. Meshes with fewer than [`PARALLEL_MIN_HINGES`] hinges run on the calling thread
+/// even with `Rayon`: waking the pool costs more than such an evaluation (measured: 441 vertices, 0.16 ms
+/// sequential, 0.23 ms on two threads).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Parallelism {
     /// On the calling thread.
@@ -195,6 +197,9 @@ struct Partition {
     tris: Vec<u32>,
     hinges: Vec<u32>,
 }
+
+/// Below this many hinges [`Parallelism::Rayon`] runs sequentially (one hinge-pass task's worth of work).
+pub const PARALLEL_MIN_HINGES: usize = 4096;
 
 /// Hinges per parallel task of the hinge pass (large enough that task overhead is negligible).
 #[cfg(feature = "rayon")]
@@ -676,6 +681,11 @@ impl<P: HingePsi> BendingModel<P> {
         accumulate: bool,
     ) -> Result<(), EvalError> {
         check_same_vertex_count(self.n_vertices(), x.len())?;
+        let par = if self.topology.hinges().len() < PARALLEL_MIN_HINGES {
+            Parallelism::Sequential
+        } else {
+            par
+        };
         let request = Request {
             gradient: request.gradient && !(accumulate && gradient.is_empty()),
             hessian: request.hessian && !(accumulate && hessian.is_empty()),
