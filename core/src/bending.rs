@@ -628,19 +628,15 @@ impl<P: HingePsi> BendingModel<P> {
         scratch: &mut Scratch,
         out: &mut Evaluation,
     ) -> Result<(), EvalError> {
-        let mut energy = 0.0;
-        self.evaluate_impl(
+        out.energy = self.evaluate_to(
             x,
             request,
             method,
             par,
             scratch,
-            &mut energy,
             &mut out.gradient,
             &mut out.hessian,
-            false,
         )?;
-        out.energy = energy;
         Ok(())
     }
 
