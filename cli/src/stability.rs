@@ -10,7 +10,7 @@ use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{Diagonal, grid, wave};
 use hinge_core::hinge::{Stencil, hinge_angle_hessian};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::precise::{Dd, reference_hinge_angle};
+use hinge_core::precise::{Dd, reference_hinge_angle, ulps};
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
     Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, stiffness_from_material,
@@ -139,16 +139,6 @@ where
     Ok(
         json!({"name": format!("rest angle near ±π (ε = {eps:e}): {name}"), "pass": pass, "rest_states": rows}),
     )
-}
-
-fn ulps(a: &[f64], r: &[Dd]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(r) {
-        let d = (Dd::from(*x) - *y).to_f64();
-        num += d * d;
-        den += y.to_f64() * y.to_f64();
-    }
-    (num / den).sqrt() / (f64::EPSILON / 2.0)
 }
 
 /// Near-degenerate upper triangle: x0's altitude over the hinge edge is `rel` times the edge length.

@@ -91,8 +91,13 @@ pub struct CsrLayout {
 impl CsrLayout {
     /// Builds the layout of `pattern`.
     pub fn new(pattern: &SymmetricPattern) -> Self {
-        let n = pattern.dim();
-        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        Self::from_lower(pattern.dim(), pattern.col_ptr(), pattern.row_idx())
+    }
+
+    /// Builds the layout of any lower-triangle CSC structure of an `n × n` symmetric matrix (column
+    /// pointers `n + 1`, row indices ≥ the column). The full symmetric CSR it describes is also the full
+    /// CSC (the matrix is symmetric), which is how faer's LU takes it.
+    pub fn from_lower(n: usize, cp: &[usize], ri: &[usize]) -> Self {
         let mut count = vec![0usize; n + 1];
         for c in 0..n {
             for &r in &ri[cp[c]..cp[c + 1]] {

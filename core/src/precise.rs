@@ -407,6 +407,24 @@ pub fn reference_hinge_hessian(
     (j.v, j.g, h)
 }
 
+/// Normwise relative error `‖a − r‖ / ‖r‖` of f64 values against a double-double reference, the difference
+/// taken in double-double, in units of 2⁻⁵³ (ulps). Entry `k` counts `weight(k)` times (2 for an
+/// off-diagonal entry stored once for a symmetric matrix, 1 otherwise).
+pub fn ulps_weighted(a: &[f64], r: &[Dd], weight: impl Fn(usize) -> f64) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (k, (x, y)) in a.iter().zip(r).enumerate() {
+        let (d, y) = ((Dd::from(*x) - *y).to_f64(), y.to_f64());
+        num += weight(k) * d * d;
+        den += weight(k) * y * y;
+    }
+    (num / den).sqrt() / (f64::EPSILON / 2.0)
+}
+
+/// [`ulps_weighted`] with every entry counted once.
+pub fn ulps(a: &[f64], r: &[Dd]) -> f64 {
+    ulps_weighted(a, r, |_| 1.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

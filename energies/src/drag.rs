@@ -32,16 +32,7 @@ impl Drag {
     /// # Errors
     /// [`EvalError::Element`] naming a negative or non-finite mass or rate.
     pub fn new(masses: Vec<f64>, rate: f64) -> Result<Self, EvalError> {
-        if let Some((i, m)) = masses
-            .iter()
-            .enumerate()
-            .find(|(_, m)| !(**m >= 0.0 && m.is_finite()))
-        {
-            return Err(EvalError::Element {
-                element: format!("vertex {i}"),
-                message: format!("mass {m} must be finite and non-negative"),
-            });
-        }
+        crate::util::check_masses(&masses)?;
         if !(rate >= 0.0 && rate.is_finite()) {
             return Err(EvalError::Element {
                 element: "drag".into(),

@@ -36,16 +36,7 @@ impl Gravity {
     /// # Errors
     /// [`EvalError::Element`] naming a non-finite or negative mass, or a non-finite `g`.
     pub fn new(masses: Vec<f64>, g: Vector3<f64>) -> Result<Self, EvalError> {
-        if let Some((i, m)) = masses
-            .iter()
-            .enumerate()
-            .find(|(_, m)| !(**m >= 0.0 && m.is_finite()))
-        {
-            return Err(EvalError::Element {
-                element: format!("vertex {i}"),
-                message: format!("mass {m} must be finite and non-negative"),
-            });
-        }
+        crate::util::check_masses(&masses)?;
         if !g.iter().all(|c| c.is_finite()) {
             return Err(EvalError::Element {
                 element: "gravity".into(),

@@ -66,6 +66,21 @@ pub(crate) mod util {
         (0..n).map(|v| slot(pattern, v, v)).collect()
     }
 
+    /// Lumped masses must be finite and non-negative: a typed error naming the first bad vertex.
+    pub fn check_masses(masses: &[f64]) -> Result<(), EvalError> {
+        match masses
+            .iter()
+            .enumerate()
+            .find(|(_, m)| !(**m >= 0.0 && m.is_finite()))
+        {
+            Some((i, m)) => Err(EvalError::Element {
+                element: format!("vertex {i}"),
+                message: format!("mass {m} must be finite and non-negative"),
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// Checks the vertex count of a pattern.
     pub fn same_size(pattern: &SymmetricPattern, n: usize) -> Result<(), EvalError> {
         if pattern.n_vertices() == n {

@@ -6,6 +6,7 @@ use faer::linalg::solvers::SolveCore;
 use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
+use hinge_core::export::CsrLayout;
 
 /// A symmetric sparse matrix pattern in lower-triangle CSC form (rows sorted within each column).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -197,11 +198,8 @@ impl LinearSolver for FaerLlt {
 /// an indefinite Hessian). The full pattern is built once at analysis.
 #[derive(Debug, Default)]
 pub struct FaerLu {
-    n: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
-    /// For each full entry, the lower-triangle value it copies.
-    source: Vec<usize>,
+    /// The full symmetric structure and where each lower value goes in it.
+    full: Option<CsrLayout>,
     values: Vec<f64>,
     symbolic: Option<SymbolicLu<usize>>,
     numeric: Option<Lu<usize, f64>>,
@@ -214,71 +212,27 @@ impl LinearSolver for FaerLu {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
-        // Full CSC: column c holds (r, c) for r ≥ c from the lower part and (r, c) for r < c as (c, r).
-        let n = p.n;
-        let mut count = vec![0usize; n + 1];
-        for c in 0..n {
-            for &r in &p.row_idx[p.col_ptr[c]..p.col_ptr[c + 1]] {
-                count[c + 1] += 1;
-                if r != c {
-                    count[r + 1] += 1;
-                }
-            }
-        }
-        for i in 0..n {
-            count[i + 1] += count[i];
-        }
-        let mut next = count.clone();
-        let nnz = count[n];
-        let (mut row_idx, mut source) = (vec![0usize; nnz], vec![0usize; nnz]);
-        // Upper entries (r < c) of column c come from lower column r; visit columns in order so rows sort.
-        for c in 0..n {
-            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
-                let r = p.row_idx[k];
-                if r != c {
-                    // entry (c, r) of column r, row c < r: appended while visiting column c < r.
-                    let s = next[r];
-                    row_idx[s] = c;
-                    source[s] = k;
-                    next[r] += 1;
-                }
-            }
-            for k in p.col_ptr[c]..p.col_ptr[c + 1] {
-                let s = next[c];
-                row_idx[s] = p.row_idx[k];
-                source[s] = k;
-                next[c] += 1;
-            }
-        }
-        let sym = SymbolicSparseColMatRef::new_checked(n, n, &count, None, &row_idx);
+        // The full symmetric matrix: its CSR layout is its CSC layout too.
+        let full = CsrLayout::from_lower(p.n, &p.col_ptr, &p.row_idx);
+        let sym =
+            SymbolicSparseColMatRef::new_checked(p.n, p.n, full.row_ptr(), None, full.col_idx());
         self.symbolic =
             Some(SymbolicLu::try_new(sym).map_err(|e| LinearError::Faer(format!("{e:?}")))?);
-        self.n = n;
-        self.col_ptr = count;
-        self.row_idx = row_idx;
-        self.values = vec![0.0; nnz];
-        self.source = source;
+        self.values = vec![0.0; full.nnz()];
+        self.full = Some(full);
         self.numeric = None;
         self.analyses += 1;
         Ok(())
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
-        let Some(s) = &self.symbolic else {
+        let (Some(s), Some(full)) = (&self.symbolic, &self.full) else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
-        for (v, &k) in self.values.iter_mut().zip(&self.source) {
-            *v = *values
-                .get(k)
-                .ok_or_else(|| LinearError::Usage("value array too short".into()))?;
-        }
-        let sym = SymbolicSparseColMatRef::new_checked(
-            self.n,
-            self.n,
-            &self.col_ptr,
-            None,
-            &self.row_idx,
-        );
+        full.scatter(values, &mut self.values)
+            .map_err(|e| LinearError::Usage(e.to_string()))?;
+        let n = full.row_ptr().len() - 1;
+        let sym = SymbolicSparseColMatRef::new_checked(n, n, full.row_ptr(), None, full.col_idx());
         let mat = SparseColMatRef::new(sym, &self.values);
         self.numeric =
             Some(Lu::try_new_with_symbolic(s.clone(), mat).map_err(|_| LinearError::Singular)?);

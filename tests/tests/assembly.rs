@@ -185,6 +185,8 @@ fn bitwise_identical_for_any_thread_count() {
     let rest = unit_grid(90).unwrap();
     let def = reference_jitter(rest.positions());
     let model = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
+    // Above the size below which `Parallelism::Rayon` runs sequentially.
+    assert!(model.topology().hinges().len() >= hinge_core::bending::PARALLEL_MIN_HINGES);
     for method in [Method::Refactored, Method::PerHinge] {
         let seq = model
             .evaluate(&def, Request::ALL, method, Parallelism::Sequential)

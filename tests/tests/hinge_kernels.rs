@@ -314,18 +314,6 @@ fn degenerate_stencils_give_typed_errors() {
     assert!(d.hessian.iter().all(|v| v.is_finite()));
 }
 
-/// ‖a − ref‖_F / ‖ref‖_F with the difference taken in double-double, in units of 2⁻⁵³.
-fn ulps_vs_reference(a: &[f64], r: &[hinge_core::precise::Dd]) -> f64 {
-    use hinge_core::precise::Dd;
-    let (mut num, mut den) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(r) {
-        let d = (Dd::from(*x) - *y).to_f64();
-        num += d * d;
-        den += y.to_f64() * y.to_f64();
-    }
-    (num / den).sqrt() / UNIT_ROUNDOFF
-}
-
 #[test]
 fn closed_form_and_num_dual_against_the_double_double_reference() {
     use hinge_core::precise::reference_hinge_angle;
@@ -338,9 +326,9 @@ fn closed_form_and_num_dual_against_the_double_double_reference() {
         let cf = hinge_angle_hessian(&x).unwrap();
         let ad = hinge_angle_autodiff(&x).unwrap();
         // nalgebra stores column-major; the Hessian is symmetric, so the order does not matter.
-        cf_h.push(ulps_vs_reference(cf.hessian.as_slice(), &href));
-        ad_h.push(ulps_vs_reference(ad.hessian.as_slice(), &href));
-        cf_g.push(ulps_vs_reference(cf.gradient.as_slice(), &r.g));
+        cf_h.push(hinge_core::precise::ulps(cf.hessian.as_slice(), &href));
+        ad_h.push(hinge_core::precise::ulps(ad.hessian.as_slice(), &href));
+        cf_g.push(hinge_core::precise::ulps(cf.gradient.as_slice(), &r.g));
     }
     let g = summary(
         "gradient closed form vs double-double reference (ulps)",

@@ -215,7 +215,14 @@ fn hessian_into_caller_csr_and_faer_and_own_pool() {
     // A faer view of the lower triangle, no copy.
     let m = faer_lower(model.pattern(), &e.hessian).unwrap();
     assert_eq!(m.nrows(), 3 * mesh.n_vertices());
-    // The caller's own rayon pools: bitwise the same result for 1 and 3 threads.
+    // The caller's own rayon pools: bitwise the same result for 1 and 3 threads, on a mesh large enough
+    // that `Parallelism::Rayon` really runs in parallel.
+    let big =
+        hinge_core::grid::grid(50, 50, 1.0, 1.0, hinge_core::grid::Diagonal::Alternating).unwrap();
+    let model = BendingModel::new(&big, TanBending { k: 1.0 }).unwrap();
+    assert!(model.topology().hinges().len() >= hinge_core::bending::PARALLEL_MIN_HINGES);
+    let bent_big = hinge_core::grid::wave(big.positions());
+    let x = &bent_big[..];
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
