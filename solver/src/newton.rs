@@ -226,6 +226,8 @@ pub struct Newton {
     solver: Box<dyn LinearSolver>,
     reduced: Reduced,
     values: Vec<f64>,
+    /// `values` plus the diagonal shift being tried (reused: no allocation per factorization).
+    shifted: Vec<f64>,
     out: Option<SystemEvaluation>,
 }
 
@@ -264,6 +266,7 @@ impl Newton {
             solver,
             reduced,
             values,
+            shifted: Vec::new(),
             out: None,
         })
     }
@@ -380,14 +383,14 @@ impl Newton {
                 shift = damping;
                 let mut attempts = 0;
                 loop {
-                    let mut vals = self.values.clone();
+                    self.shifted.clone_from(&self.values);
                     if shift > 0.0 {
                         for &k in &self.reduced.diag {
-                            vals[k] += shift;
+                            self.shifted[k] += shift;
                         }
                     }
                     let t = Instant::now();
-                    let r = self.solver.factor(&vals);
+                    let r = self.solver.factor(&self.shifted);
                     stats.factor_seconds += t.elapsed().as_secs_f64();
                     match r {
                         Ok(()) => break,
