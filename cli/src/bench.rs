@@ -1,14 +1,25 @@
-//! `hinge bench`: energy + gradient + Hessian + assembly of discrete shells per method, on the unit grids of
-//! 81×81 and 401×401 vertices (flat rest, deformed by z = 0.1·sin(3x)·cos(2y)). Medians after a warm-up.
+//! `hinge bench`: energy + gradient + Hessian + assembly of discrete shells per method, on three meshes
+//! (every JSON row names its `mesh`):
+//! - `grid`: the unit grids of 81×81 and 401×401 vertices (`--sizes`), numbered row by row;
+//! - `grid-permuted`: the same grids with their vertices renumbered by a seeded random permutation;
+//! - `irregular`: a 351×351-vertex irregular sheet (random diagonals, jitter, random numbering: 123 201
+//!   vertices), emitted once.
+//!
+//! All flat at rest and deformed by z = 0.1·sin(3x)·cos(2y). Full evaluations run on 1 and on 2 threads
+//! whatever the machine (and on all cores when there are more); `refactored:value` is an energy-only request.
+//! Medians after a warm-up, rows interleaved so that ratios compare like with like.
 
 use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Args;
+use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{SplitMix64, unit_grid, wave};
+use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::handwritten::{self, Stiffness};
 use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities, TanBending};
+use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
 use hinge_energies::bending::ViscousDamping;
 
 /// Arguments of `hinge bench`.
@@ -26,13 +37,16 @@ pub struct BenchArgs {
     /// Cells per side of the cloth for the solver rows (default 80 and 200: 19 683 and 120 603 unknowns).
     #[arg(long, value_delimiter = ',', default_values_t = [80usize, 200])]
     solver_sizes: Vec<usize>,
-    /// Only the rows whose method name is listed (default: all rows; `psi` and `solve` select those groups).
+    /// Only the rows whose method name is listed (default: all rows; `psi`, `solve` and `setup` select those
+    /// groups).
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
 }
 
 struct Row {
     method: String,
+    /// `grid`, `grid-permuted`, `irregular`, or `none` for the ψ rows (no mesh).
+    mesh: &'static str,
     threads: usize,
     n_vertices: usize,
     n_hinges: usize,
@@ -98,6 +112,7 @@ fn psi_rows(runs: usize) -> Vec<Row> {
         .collect();
     let row = |name: &str, ms: f64| Row {
         method: name.to_string(),
+        mesh: "none",
         threads: 1,
         n_vertices: 0,
         n_hinges: PSI_SAMPLES,
@@ -233,6 +248,7 @@ fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
         let (a, f, s) = (median(ta), median(tf), median(ts));
         rows.push(Row {
             method: format!("solve:{name}"),
+            mesh: "grid",
             threads,
             n_vertices: nv,
             n_hinges: nh,
@@ -253,6 +269,8 @@ fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
 enum Kind {
     /// A full evaluation (energy, gradient, Hessian, assembly) with this method and thread count.
     Full(Method, usize),
+    /// An energy-only request (refactored, one thread).
+    Value,
     /// Local blocks computed, nothing written into the matrix.
     Local(Method),
     /// Every value slot written once.
@@ -261,6 +279,254 @@ enum Kind {
     DampedOnePass,
     /// The same two terms as two models (two passes).
     DampedTwoPasses,
+}
+
+/// The thread pools of the parallel rows.
+struct Pools<'a> {
+    two: &'a rayon::ThreadPool,
+    many: &'a rayon::ThreadPool,
+}
+
+/// One mesh of the assembly rows, with its model, buffers and timings.
+struct Case<'a> {
+    mesh: &'static str,
+    x: Vec<Vector3<f64>>,
+    kinds: &'a [(&'a str, Kind)],
+    model: BendingModel<DiscreteShells>,
+    out: hinge_core::bending::Evaluation,
+    scratch: hinge_core::bending::Scratch,
+    damped: Option<Damped>,
+    times: Vec<Vec<f64>>,
+    one_thread_hessian: Option<Vec<f64>>,
+}
+
+/// Tan bending + viscous damping as one model and as two.
+type Damped = (
+    BendingModel<(TanBending, ViscousDamping)>,
+    BendingModel<TanBending>,
+    BendingModel<ViscousDamping>,
+    (
+        hinge_core::bending::Scratch,
+        hinge_core::bending::Scratch,
+        hinge_core::bending::Scratch,
+    ),
+);
+
+impl<'a> Case<'a> {
+    fn new(
+        mesh: &'static str,
+        rest: &TriMesh,
+        x: Vec<Vector3<f64>>,
+        kinds: &'a [(&'a str, Kind)],
+    ) -> Result<Self, String> {
+        let model =
+            BendingModel::new(rest, DiscreteShells { k: 1.0 }).map_err(|e| e.to_string())?;
+        let damped = if kinds
+            .iter()
+            .any(|(_, k)| matches!(k, Kind::DampedOnePass | Kind::DampedTwoPasses))
+        {
+            let (tan, damp) = (TanBending { k: 1.0 }, ViscousDamping { kd: 0.1 });
+            let mut both =
+                BendingModel::new(rest, (tan.clone(), damp.clone())).map_err(|e| e.to_string())?;
+            let t = BendingModel::new(rest, tan).map_err(|e| e.to_string())?;
+            let mut d = BendingModel::new(rest, damp).map_err(|e| e.to_string())?;
+            both.set_step(rest.positions(), 0.01)
+                .map_err(|e| e.to_string())?;
+            d.set_step(rest.positions(), 0.01)
+                .map_err(|e| e.to_string())?;
+            let scratch = (both.new_scratch(), t.new_scratch(), d.new_scratch());
+            Some((both, t, d, scratch))
+        } else {
+            None
+        };
+        Ok(Self {
+            mesh,
+            x,
+            kinds,
+            out: model.new_output(),
+            scratch: model.new_scratch(),
+            model,
+            damped,
+            times: vec![Vec::new(); kinds.len()],
+            one_thread_hessian: None,
+        })
+    }
+
+    /// One evaluation of row `kind`.
+    fn run_once(&mut self, kind: Kind, pools: &Pools) -> Result<(), String> {
+        let (model, x, out, scratch) = (&self.model, &self.x[..], &mut self.out, &mut self.scratch);
+        match kind {
+            Kind::Full(method, threads) => {
+                // One thread: the sequential path (no rayon task overhead); more: a pool.
+                let eval = |scratch: &mut _, out: &mut _| {
+                    model.evaluate_into(
+                        x,
+                        Request::ALL,
+                        method,
+                        if threads == 1 {
+                            Parallelism::Sequential
+                        } else {
+                            Parallelism::Rayon
+                        },
+                        scratch,
+                        out,
+                    )
+                };
+                match threads {
+                    1 => eval(scratch, out),
+                    2 => pools.two.install(|| eval(scratch, out)),
+                    _ => pools.many.install(|| eval(scratch, out)),
+                }
+                .map_err(|e| e.to_string())?;
+            }
+            Kind::Value => {
+                model
+                    .evaluate_into(
+                        x,
+                        Request::VALUE,
+                        Method::Refactored,
+                        Parallelism::Sequential,
+                        scratch,
+                        out,
+                    )
+                    .map_err(|e| e.to_string())?;
+                std::hint::black_box(out.energy);
+            }
+            Kind::Local(method) => {
+                let sum = model
+                    .local_blocks_checksum(x, method, scratch, out)
+                    .map_err(|e| e.to_string())?;
+                std::hint::black_box(sum);
+            }
+            Kind::DampedOnePass | Kind::DampedTwoPasses => {
+                if let Some((both, t, d, (s1, s2, s3))) = self.damped.as_mut() {
+                    let (mut e, g, h) = (0.0, &mut out.gradient, &mut out.hessian);
+                    let seq = Parallelism::Sequential;
+                    let r = Request::ALL;
+                    let m = Method::Refactored;
+                    if matches!(kind, Kind::DampedOnePass) {
+                        both.evaluate_add(x, r, m, seq, s1, &mut e, g, h)
+                    } else {
+                        t.evaluate_add(x, r, m, seq, s2, &mut e, g, h)
+                            .and_then(|()| d.evaluate_add(x, r, m, seq, s3, &mut e, g, h))
+                    }
+                    .map_err(|e| e.to_string())?;
+                    std::hint::black_box(e);
+                }
+            }
+            Kind::WriteFloor => {
+                for v in out.hessian.iter_mut() {
+                    *v = std::hint::black_box(1.0);
+                }
+                std::hint::black_box(&out.hessian);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The assembly rows of several meshes: every (mesh, kind) timed in blocks interleaved over all meshes and
+/// kinds, so that machine drift hits every row alike and the ratios between meshes are fair.
+fn assembly_rows(cases: &mut [Case], runs: usize, pools: &Pools) -> Result<Vec<Row>, String> {
+    for round in 0..=runs {
+        for case in cases.iter_mut() {
+            for i in 0..case.kinds.len() {
+                let kind = case.kinds[i].1;
+                // num-dual is ~10 µs per hinge: five timed runs of it are enough.
+                let slow = matches!(kind, Kind::Full(Method::Autodiff, _));
+                if slow && round > 5 {
+                    continue;
+                }
+                // A block of consecutive evaluations per row: the first ones wake the row's thread pool
+                // (an idle virtual CPU takes milliseconds to come back up to speed: measured here, 2-thread
+                // runs right after a pool switch were no faster than 1-thread ones), the rest are timed.
+                for rep in 0..if slow { 2 } else { BLOCK } {
+                    let start = Instant::now();
+                    case.run_once(kind, pools)?;
+                    let t = start.elapsed().as_secs_f64() * 1e3;
+                    if round > 0 && rep >= if slow { 1 } else { UNTIMED } {
+                        case.times[i].push(t); // round 0 is the warm-up
+                    }
+                }
+                if let Kind::Full(Method::Refactored, threads) = kind {
+                    // Bitwise identity across thread counts, checked on the benchmark itself.
+                    match &case.one_thread_hessian {
+                        None => case.one_thread_hessian = Some(case.out.hessian.clone()),
+                        Some(h)
+                            if h.iter()
+                                .zip(&case.out.hessian)
+                                .any(|(a, b)| a.to_bits() != b.to_bits()) =>
+                        {
+                            return Err(format!(
+                                "{}: the {threads}-thread Hessian differs from the 1-thread one",
+                                case.mesh
+                            ));
+                        }
+                        Some(_) => {}
+                    }
+                }
+            }
+        }
+    }
+    let mut rows = Vec::new();
+    for case in cases.iter_mut() {
+        let (nv, nh) = (
+            case.model.n_vertices(),
+            case.model.topology().hinges().len(),
+        );
+        for (i, &(name, kind)) in case.kinds.iter().enumerate() {
+            rows.push(Row {
+                method: name.to_string(),
+                mesh: case.mesh,
+                threads: if let Kind::Full(_, t) = kind { t } else { 1 },
+                n_vertices: nv,
+                n_hinges: nh,
+                median_ms: median(std::mem::take(&mut case.times[i])),
+                extra: Vec::new(),
+            });
+        }
+    }
+    Ok(rows)
+}
+
+/// Set-up cost on one mesh: the whole `BendingModel::new` (topology, rest quantities, pattern, slots,
+/// partitions) and, inside it, the pattern with the locality order against the identity order.
+fn setup_rows(mesh: &'static str, rest: &TriMesh, runs: usize) -> Result<Vec<Row>, String> {
+    use hinge_core::pattern::SymmetricPattern;
+    let model = BendingModel::new(rest, DiscreteShells { k: 1.0 }).map_err(|e| e.to_string())?;
+    let (nv, nh) = (model.n_vertices(), model.topology().hinges().len());
+    let pairs = model.couplings();
+    let identity: Vec<usize> = (0..nv).collect();
+    let (mut tm, mut tl, mut ti) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..runs.clamp(3, 5) {
+        let t = Instant::now();
+        let m = BendingModel::new(rest, DiscreteShells { k: 1.0 }).map_err(|e| e.to_string())?;
+        tm.push(t.elapsed().as_secs_f64() * 1e3);
+        std::hint::black_box(&m);
+        let t = Instant::now();
+        let p = SymmetricPattern::new(nv, pairs.iter().copied()).map_err(|e| e.to_string())?;
+        tl.push(t.elapsed().as_secs_f64() * 1e3);
+        std::hint::black_box(&p);
+        let t = Instant::now();
+        let p = SymmetricPattern::with_vertex_order(nv, pairs.iter().copied(), &identity)
+            .map_err(|e| e.to_string())?;
+        ti.push(t.elapsed().as_secs_f64() * 1e3);
+        std::hint::black_box(&p);
+    }
+    let row = |name: &str, t: Vec<f64>| Row {
+        method: name.to_string(),
+        mesh,
+        threads: 1,
+        n_vertices: nv,
+        n_hinges: nh,
+        median_ms: median(t),
+        extra: Vec::new(),
+    };
+    Ok(vec![
+        row("setup:model", tm),
+        row("setup:pattern:locality", tl),
+        row("setup:pattern:identity", ti),
+    ])
 }
 
 fn median(mut t: Vec<f64>) -> f64 {
@@ -281,168 +547,66 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     };
     let many = pool(all)?;
     let wanted = |name: &str| args.only.is_empty() || args.only.iter().any(|o| o == name);
+    let two = pool(2)?;
     let mut kinds = vec![
         ("refactored", Kind::Full(Method::Refactored, 1)),
+        ("refactored", Kind::Full(Method::Refactored, 2)),
+        ("refactored:value", Kind::Value),
         ("per_hinge", Kind::Full(Method::PerHinge, 1)),
         ("autodiff", Kind::Full(Method::Autodiff, 1)),
-        ("refactored", Kind::Full(Method::Refactored, all)),
         ("refactored_local", Kind::Local(Method::Refactored)),
         ("per_hinge_local", Kind::Local(Method::PerHinge)),
         ("write_floor", Kind::WriteFloor),
         ("tan+damping:one_pass", Kind::DampedOnePass),
         ("tan+damping:two_passes", Kind::DampedTwoPasses),
     ];
+    if all > 2 {
+        kinds.insert(2, ("refactored", Kind::Full(Method::Refactored, all)));
+    }
     kinds.retain(|(name, _)| wanted(name));
+    // The other meshes get the rows that show numbering and shape independence.
+    let mut other: Vec<(&str, Kind)> = kinds
+        .iter()
+        .copied()
+        .filter(|(_, k)| {
+            matches!(
+                k,
+                Kind::Full(Method::Refactored, _) | Kind::Full(Method::PerHinge, 1) | Kind::Value
+            )
+        })
+        .collect();
+    other.retain(|(name, _)| wanted(name));
+    let pools = Pools {
+        two: &two,
+        many: &many,
+    };
     let mut rows = Vec::new();
+    // Each size's grid and permuted grid are timed together (interleaved); the irregular sheet with the
+    // largest size.
+    let largest = args.sizes.iter().copied().max();
     for &n in &args.sizes {
         let rest = unit_grid(n).map_err(|e| e.to_string())?;
         let x = wave(rest.positions());
-        let model =
-            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).map_err(|e| e.to_string())?;
-        let (nv, nh) = (model.n_vertices(), model.topology().hinges().len());
-        let mut out = model.new_output();
-        let mut scratch = model.new_scratch();
-        let mut one_thread_hessian: Option<Vec<f64>> = None;
-        let damped = if kinds
-            .iter()
-            .any(|(_, k)| matches!(k, Kind::DampedOnePass | Kind::DampedTwoPasses))
-        {
-            let (tan, damp) = (TanBending { k: 1.0 }, ViscousDamping { kd: 0.1 });
-            let mut both =
-                BendingModel::new(&rest, (tan.clone(), damp.clone())).map_err(|e| e.to_string())?;
-            let t = BendingModel::new(&rest, tan).map_err(|e| e.to_string())?;
-            let mut d = BendingModel::new(&rest, damp).map_err(|e| e.to_string())?;
-            both.set_step(rest.positions(), 0.01)
-                .map_err(|e| e.to_string())?;
-            d.set_step(rest.positions(), 0.01)
-                .map_err(|e| e.to_string())?;
-            let scratch = (both.new_scratch(), t.new_scratch(), d.new_scratch());
-            Some((both, t, d, scratch))
-        } else {
-            None
-        };
-        let mut damped = damped;
-        let mut times = vec![Vec::new(); kinds.len()];
-        for round in 0..=runs {
-            for (i, &(_, kind)) in kinds.iter().enumerate() {
-                // num-dual is ~10 µs per hinge: five timed runs of it are enough.
-                let slow = matches!(kind, Kind::Full(Method::Autodiff, _));
-                if slow && round > 5 {
-                    continue;
-                }
-                // A block of consecutive evaluations per row: the first ones wake the row's thread pool (an
-                // idle virtual CPU takes milliseconds to come back up to speed: measured here, 2-thread runs
-                // right after a pool switch were no faster than 1-thread ones), the rest are timed. Blocks of
-                // all rows are interleaved, so slow phases of the machine hit every row alike.
-                for rep in 0..if slow { 2 } else { BLOCK } {
-                    let start = Instant::now();
-                    match kind {
-                        Kind::Full(method, threads) => {
-                            // One thread: the sequential path (no rayon task overhead); more: the pool.
-                            if threads == 1 {
-                                model.evaluate_into(
-                                    &x,
-                                    Request::ALL,
-                                    method,
-                                    Parallelism::Sequential,
-                                    &mut scratch,
-                                    &mut out,
-                                )
-                            } else {
-                                many.install(|| {
-                                    model.evaluate_into(
-                                        &x,
-                                        Request::ALL,
-                                        method,
-                                        Parallelism::Rayon,
-                                        &mut scratch,
-                                        &mut out,
-                                    )
-                                })
-                            }
-                            .map_err(|e| e.to_string())?;
-                        }
-                        Kind::Local(method) => {
-                            let sum = model
-                                .local_blocks_checksum(&x, method, &mut scratch, &mut out)
-                                .map_err(|e| e.to_string())?;
-                            std::hint::black_box(sum);
-                        }
-                        Kind::DampedOnePass | Kind::DampedTwoPasses => {
-                            if let Some((both, t, d, (s1, s2, s3))) = damped.as_mut() {
-                                let (mut e, g, h) = (0.0, &mut out.gradient, &mut out.hessian);
-                                let seq = Parallelism::Sequential;
-                                let r = Request::ALL;
-                                if matches!(kind, Kind::DampedOnePass) {
-                                    both.evaluate_add(
-                                        &x,
-                                        r,
-                                        Method::Refactored,
-                                        seq,
-                                        s1,
-                                        &mut e,
-                                        g,
-                                        h,
-                                    )
-                                } else {
-                                    t.evaluate_add(&x, r, Method::Refactored, seq, s2, &mut e, g, h)
-                                        .and_then(|()| {
-                                            d.evaluate_add(
-                                                &x,
-                                                r,
-                                                Method::Refactored,
-                                                seq,
-                                                s3,
-                                                &mut e,
-                                                g,
-                                                h,
-                                            )
-                                        })
-                                }
-                                .map_err(|e| e.to_string())?;
-                                std::hint::black_box(e);
-                            }
-                        }
-                        Kind::WriteFloor => {
-                            for v in out.hessian.iter_mut() {
-                                *v = std::hint::black_box(1.0);
-                            }
-                            std::hint::black_box(&out.hessian);
-                        }
-                    }
-                    let t = start.elapsed().as_secs_f64() * 1e3;
-                    if round > 0 && rep >= if slow { 1 } else { UNTIMED } {
-                        times[i].push(t); // round 0 is the warm-up
-                    }
-                }
-
-                if let Kind::Full(Method::Refactored, threads) = kind {
-                    // Bitwise identity across thread counts, checked on the benchmark itself.
-                    match &one_thread_hessian {
-                        None => one_thread_hessian = Some(out.hessian.clone()),
-                        Some(h)
-                            if h.iter()
-                                .zip(&out.hessian)
-                                .any(|(a, b)| a.to_bits() != b.to_bits()) =>
-                        {
-                            return Err(format!(
-                                "the {threads}-thread Hessian differs from the 1-thread one"
-                            ));
-                        }
-                        Some(_) => {}
-                    }
-                }
+        let mut cases = vec![Case::new("grid", &rest, x, &kinds)?];
+        if !other.is_empty() {
+            let perm = random_permutation(rest.n_vertices(), 0x9E37 + n as u64);
+            let permuted = renumber(&rest, &perm).map_err(|e| e.to_string())?;
+            let xp = wave(permuted.positions());
+            cases.push(Case::new("grid-permuted", &permuted, xp, &other)?);
+            if Some(n) == largest {
+                let irr = irregular_sheet(351, 351, 0x1EE7).map_err(|e| e.to_string())?;
+                let xi = wave(irr.positions());
+                cases.push(Case::new("irregular", &irr, xi, &other)?);
             }
         }
-        for (i, &(name, kind)) in kinds.iter().enumerate() {
-            rows.push(Row {
-                method: name.to_string(),
-                threads: if let Kind::Full(_, t) = kind { t } else { 1 },
-                n_vertices: nv,
-                n_hinges: nh,
-                median_ms: median(std::mem::take(&mut times[i])),
-                extra: Vec::new(),
-            });
+        rows.extend(assembly_rows(&mut cases, runs, &pools)?);
+        if wanted("setup") {
+            rows.extend(setup_rows(
+                "grid-permuted",
+                &renumber(&rest, &random_permutation(rest.n_vertices(), 1))
+                    .map_err(|e| e.to_string())?,
+                runs,
+            )?);
         }
     }
     if wanted("psi") {
@@ -454,14 +618,15 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         }
     }
     println!(
-        "{:<32} {:>7} {:>10} {:>9} {:>12} {:>12}",
-        "method", "threads", "vertices", "hinges", "median_ms", "ns_per_hinge"
+        "{:<32} {:<14} {:>7} {:>10} {:>9} {:>12} {:>12}",
+        "method", "mesh", "threads", "vertices", "hinges", "median_ms", "ns_per_hinge"
     );
     for r in &rows {
         let extra: Vec<String> = r.extra.iter().map(|(k, v)| format!("{k} {v:.3}")).collect();
         println!(
-            "{:<32} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}  {}",
+            "{:<32} {:<14} {:>7} {:>10} {:>9} {:>12.3} {:>12.1}  {}",
             r.method,
+            r.mesh,
             r.threads,
             r.n_vertices,
             r.n_hinges,
@@ -470,28 +635,68 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             extra.join(", ")
         );
     }
+    let find = |mesh: &str, nv: usize, m: &str, t: usize| {
+        rows.iter()
+            .find(|r| r.mesh == mesh && r.n_vertices == nv && r.method == m && r.threads == t)
+            .map(|r| r.median_ms)
+    };
     for &n in &args.sizes {
         let nv = (n + 1) * (n + 1);
-        let get = |m: &str, t: usize| {
-            rows.iter()
-                .find(|r| r.n_vertices == nv && r.method == m && (t == 0 || r.threads == t))
-                .map(|r| r.median_ms)
-        };
-        if let (Some(rf), Some(ph), Some(ad), Some(rl), Some(pl), Some(rp)) = (
+        let get = |m: &str, t: usize| find("grid", nv, m, t);
+        if let (Some(rf), Some(ph), Some(ad), Some(rl), Some(pl)) = (
             get("refactored", 1),
             get("per_hinge", 1),
             get("autodiff", 1),
             get("refactored_local", 1),
             get("per_hinge_local", 1),
-            get("refactored", all),
         ) {
             println!(
-                "{nv} vertices: per_hinge/refactored {:.2}x, per_hinge_local/refactored_local {:.2}x, refactored/refactored_local {:.2}, autodiff/refactored {:.1}x, 1 thread/{all} threads {:.2}x",
+                "{nv} vertices: per_hinge/refactored {:.2}x, per_hinge_local/refactored_local {:.2}x, refactored/refactored_local {:.2}, autodiff/refactored {:.1}x",
                 ph / rf,
                 pl / rl,
                 rf / rl,
                 ad / rf,
-                rf / rp
+            );
+        }
+        for mesh in ["grid", "grid-permuted"] {
+            let get = |m: &str, t: usize| find(mesh, nv, m, t);
+            if let (Some(r1), Some(r2)) = (get("refactored", 1), get("refactored", 2)) {
+                println!(
+                    "{nv} vertices, {mesh}: refactored 1 thread / 2 threads {:.2}x",
+                    r1 / r2
+                );
+            }
+            if let (Some(r1), Some(v)) = (get("refactored", 1), get("refactored:value", 1)) {
+                println!(
+                    "{nv} vertices, {mesh}: refactored (energy + gradient + Hessian) / energy only {:.2}x",
+                    r1 / v
+                );
+            }
+        }
+        if let (Some(g), Some(p)) = (
+            find("grid", nv, "refactored", 1),
+            find("grid-permuted", nv, "refactored", 1),
+        ) {
+            println!(
+                "{nv} vertices: refactored grid-permuted / grid {:.2}x (1 thread)",
+                p / g
+            );
+        }
+    }
+    if let Some(r) = rows
+        .iter()
+        .find(|r| r.mesh == "irregular" && r.method == "refactored" && r.threads == 1)
+    {
+        let nv = r.n_vertices;
+        if let (Some(r1), Some(r2), Some(ph)) = (
+            find("irregular", nv, "refactored", 1),
+            find("irregular", nv, "refactored", 2),
+            find("irregular", nv, "per_hinge", 1),
+        ) {
+            println!(
+                "irregular ({nv} vertices): per_hinge/refactored {:.2}x, 1 thread / 2 threads {:.2}x",
+                ph / r1,
+                r1 / r2
             );
         }
     }
@@ -530,6 +735,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .map(|r| {
                 let mut v = serde_json::json!({
                     "method": r.method,
+                    "mesh": r.mesh,
                     "threads": r.threads,
                     "n_vertices": r.n_vertices,
                     "n_hinges": r.n_hinges,

@@ -58,7 +58,8 @@ pub fn reference_hessian(model: &BendingModel<TanBending>, x: &[Vector3<f64>]) -
         for a in 0..4 {
             for b in 0..4 {
                 let (va, vb) = (h.vertices[a], h.vertices[b]);
-                if va < vb {
+                // The stored lower block is the one whose row comes later in the pattern's storage order.
+                if pattern.storage_of(va) < pattern.storage_of(vb) {
                     continue;
                 }
                 let Some(slot) = pattern.find(va, vb) else {

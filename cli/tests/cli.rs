@@ -138,17 +138,31 @@ fn eval_round_trip_matches_the_library() {
         .map(|w| w.parse().unwrap())
         .collect();
     assert_eq!(header, vec![3 * 6561, 3 * 6561, model.pattern().nnz()]);
-    let (cp, ri) = (model.pattern().col_ptr(), model.pattern().row_idx());
-    let mut k = 0;
+    // Every stored value, keyed by the caller's (row ≥ column) dofs.
+    let p = model.pattern();
+    let (cp, ri) = (p.col_ptr(), p.row_idx());
+    let mut expected = std::collections::HashMap::new();
     for c in 0..cp.len() - 1 {
         for q in cp[c]..cp[c + 1] {
-            let w: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
-            assert_eq!(w[0].parse::<usize>().unwrap(), ri[q] + 1);
-            assert_eq!(w[1].parse::<usize>().unwrap(), c + 1);
-            assert_eq!(w[2].parse::<f64>().unwrap(), e.hessian[k]);
-            k += 1;
+            let (a, b) = (p.caller_dof(ri[q]), p.caller_dof(c));
+            expected.insert((a.max(b), a.min(b)), e.hessian[q]);
         }
     }
+    let mut last = (0, 0);
+    let mut count = 0;
+    for line in lines {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        let (r, c) = (
+            w[0].parse::<usize>().unwrap() - 1,
+            w[1].parse::<usize>().unwrap() - 1,
+        );
+        assert!(r >= c, "lower triangle in the caller's numbering");
+        assert!((c, r) > last || count == 0, "sorted by column, then row");
+        last = (c, r);
+        assert_eq!(w[2].parse::<f64>().unwrap(), expected[&(r, c)]);
+        count += 1;
+    }
+    assert_eq!(count, p.nnz());
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -10,6 +10,7 @@ use std::sync::Arc;
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::bending::scatter::{Orient, add_block_values};
 use crate::bending::{BendingModel, Method, Parallelism, Request, Scratch};
 use crate::error::EvalError;
 use crate::mesh::check_same_vertex_count;
@@ -39,8 +40,9 @@ impl Accumulator<'_> {
     }
 
     /// Adds block `b` = ∂²E/∂x_r∂x_c at the pattern's block `slot` (from [`SymmetricPattern::find`]); `r`
-    /// and `c` are the block's row and column vertices in either order (the transpose is stored when
-    /// `r < c`). No-op when the Hessian is not requested.
+    /// and `c` are the block's row and column vertices (the caller's numbering) in either order: the
+    /// transpose is stored when the slot's stored block is `(c, r)` (see [`crate::pattern::BlockSlot`]). No-op
+    /// when the Hessian is not requested.
     #[inline]
     pub fn add_block(&mut self, slot: usize, r: usize, c: usize, b: &Matrix3<f64>) {
         if self.hessian.is_empty() {
@@ -50,22 +52,14 @@ impl Accumulator<'_> {
             return;
         };
         let off = s.offset.map(|o| o as usize);
-        for cc in 0..3 {
-            let o = off[cc];
-            if r == c {
-                for rr in cc..3 {
-                    self.hessian[o + rr - cc] += b[(rr, cc)];
-                }
-            } else if r > c {
-                for rr in 0..3 {
-                    self.hessian[o + rr] += b[(rr, cc)];
-                }
-            } else {
-                for rr in 0..3 {
-                    self.hessian[o + rr] += b[(cc, rr)];
-                }
-            }
-        }
+        let orient = if r == c {
+            Orient::Diagonal
+        } else if r == s.row as usize {
+            Orient::AsIs
+        } else {
+            Orient::Transposed
+        };
+        add_block_values(self.hessian, off, orient, b);
     }
 }
 
@@ -255,7 +249,7 @@ impl System {
             }
             t.couplings(&mut pairs);
         }
-        let pattern = Arc::new(SymmetricPattern::new(n_vertices, pairs));
+        let pattern = Arc::new(SymmetricPattern::new(n_vertices, pairs)?);
         for t in &mut terms {
             t.bind(&pattern)?;
         }

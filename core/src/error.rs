@@ -177,6 +177,18 @@ pub enum EvalError {
         /// What went wrong.
         source: StencilError,
     },
+    /// A triangle of a hinge energy is degenerate in the deformed state (the triangle pass of the refactored
+    /// Hessian and the per-hinge kernels share the hinge pass's decision, so this names the triangle a pass
+    /// would otherwise have had to skip).
+    #[error("triangle {triangle} (vertices {vertices:?}): {source}")]
+    Triangle {
+        /// Triangle index in the mesh.
+        triangle: usize,
+        /// Its vertices, in the mesh's corner order.
+        vertices: [usize; 3],
+        /// What went wrong (the corner is in the mesh's corner order).
+        source: DegenerateTriangle,
+    },
     /// An element of some energy (a spring, a membrane triangle, a contact) cannot be evaluated.
     #[error("{element}: {message}")]
     Element {

@@ -1,5 +1,6 @@
 //! Exporting an assembled Hessian: full CSR arrays, a faer sparse matrix view, Matrix Market files, and the
-//! gradient as text. Values always come from [`crate::pattern::SymmetricPattern`]'s lower-triangle CSC order.
+//! gradient as text. Values always come from [`crate::pattern::SymmetricPattern`]'s lower-triangle CSC order
+//! (its storage order); every export but [`faer_lower`] is in the caller's numbering.
 
 use std::io::Write;
 
@@ -21,7 +22,10 @@ fn check_len(pattern: &SymmetricPattern, values: &[f64]) -> Result<(), EvalError
 }
 
 /// The lower triangle as a faer sparse matrix view (no copy), the input faer's sparse Cholesky takes with
-/// `Side::Lower`.
+/// `Side::Lower`. The view is in the pattern's **storage order**: row/column `i` is the caller's dof
+/// [`SymmetricPattern::caller_dof`]`(i)`, so permute right-hand sides with
+/// [`SymmetricPattern::storage_dof`] (or build the pattern with
+/// [`SymmetricPattern::with_vertex_order`] and the identity for a view in the caller's numbering).
 ///
 /// # Errors
 /// [`EvalError::BufferLength`] when `values` does not fit the pattern.
@@ -34,6 +38,30 @@ pub fn faer_lower<'a>(
     let symbolic =
         SymbolicSparseColMatRef::new_checked(n, n, pattern.col_ptr(), None, pattern.row_idx());
     Ok(SparseColMatRef::new(symbolic, values))
+}
+
+/// The full symmetric matrix as a dense `3n × 3n` nalgebra matrix in the caller's numbering (for small
+/// problems and tests).
+///
+/// # Errors
+/// [`EvalError::BufferLength`] when `values` does not fit the pattern.
+pub fn dense(
+    pattern: &SymmetricPattern,
+    values: &[f64],
+) -> Result<nalgebra::DMatrix<f64>, EvalError> {
+    check_len(pattern, values)?;
+    let n = pattern.dim();
+    let mut d = nalgebra::DMatrix::zeros(n, n);
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    for c in 0..n {
+        let mc = pattern.caller_dof(c);
+        for k in cp[c]..cp[c + 1] {
+            let mr = pattern.caller_dof(ri[k]);
+            d[(mr, mc)] = values[k];
+            d[(mc, mr)] = values[k];
+        }
+    }
+    Ok(d)
 }
 
 /// CSR arrays `(row_ptr, col_idx, values)`.
@@ -89,49 +117,62 @@ pub struct CsrLayout {
 }
 
 impl CsrLayout {
-    /// Builds the layout of `pattern`.
+    /// Builds the layout of `pattern`, in the caller's numbering (rows and columns are the caller's dofs
+    /// whatever the pattern's storage order).
     pub fn new(pattern: &SymmetricPattern) -> Self {
-        Self::from_lower(pattern.dim(), pattern.col_ptr(), pattern.row_idx())
+        if pattern.is_identity_order() {
+            Self::from_lower(pattern.dim(), pattern.col_ptr(), pattern.row_idx())
+        } else {
+            Self::from_lower_mapped(pattern.dim(), pattern.col_ptr(), pattern.row_idx(), |i| {
+                pattern.caller_dof(i)
+            })
+        }
     }
 
     /// Builds the layout of any lower-triangle CSC structure of an `n × n` symmetric matrix (column
     /// pointers `n + 1`, row indices ≥ the column). The full symmetric CSR it describes is also the full
     /// CSC (the matrix is symmetric), which is how faer's LU takes it.
     pub fn from_lower(n: usize, cp: &[usize], ri: &[usize]) -> Self {
-        let mut count = vec![0usize; n + 1];
+        Self::from_lower_mapped(n, cp, ri, |i| i)
+    }
+
+    /// [`CsrLayout::from_lower`] of the matrix renumbered by `map` (a permutation of `0..n`: row and column
+    /// `i` of the lower CSC become `map(i)` in the CSR).
+    pub fn from_lower_mapped(
+        n: usize,
+        cp: &[usize],
+        ri: &[usize],
+        map: impl Fn(usize) -> usize,
+    ) -> Self {
+        let nnz = ri.len();
+        // (row, col, lower value index, whether this is the mirrored entry), both triangles.
+        let mut entries: Vec<(usize, usize, usize, bool)> = Vec::with_capacity(2 * nnz);
         for c in 0..n {
-            for &r in &ri[cp[c]..cp[c + 1]] {
-                count[r + 1] += 1;
-                if r != c {
-                    count[c + 1] += 1;
+            let mc = map(c);
+            for k in cp[c]..cp[c + 1] {
+                let mr = map(ri[k]);
+                entries.push((mr, mc, k, false));
+                if mr != mc {
+                    entries.push((mc, mr, k, true));
                 }
             }
+        }
+        entries.sort_unstable_by_key(|&(r, c, _, _)| (r, c));
+        let mut row_ptr = vec![0usize; n + 1];
+        for &(r, _, _, _) in &entries {
+            row_ptr[r + 1] += 1;
         }
         for i in 0..n {
-            count[i + 1] += count[i];
+            row_ptr[i + 1] += row_ptr[i];
         }
-        let row_ptr = count.clone();
-        let mut next = count;
-        let nnz = ri.len();
-        let mut col_idx = vec![0usize; row_ptr[n]];
         let (mut lower, mut upper) = (vec![0usize; nnz], vec![usize::MAX; nnz]);
-        // Row r of the full matrix = row r of the lower part plus column r of it (as the upper part). Visiting
-        // entries (r, c), c ≤ r, by increasing c, row r receives its columns c < r in increasing order, then
-        // row c receives (c, r') for r' > c after all its smaller columns: every row comes out sorted.
-        for c in 0..n {
-            for k in cp[c]..cp[c + 1] {
-                let r = ri[k];
-                col_idx[next[r]] = c;
-                lower[k] = next[r];
-                next[r] += 1;
-            }
-            for k in cp[c]..cp[c + 1] {
-                let r = ri[k];
-                if r != c {
-                    col_idx[next[c]] = r;
-                    upper[k] = next[c];
-                    next[c] += 1;
-                }
+        let mut col_idx = Vec::with_capacity(entries.len());
+        for (q, &(_, c, k, mirrored)) in entries.iter().enumerate() {
+            col_idx.push(c);
+            if mirrored {
+                upper[k] = q;
+            } else {
+                lower[k] = q;
             }
         }
         Self {
@@ -188,7 +229,8 @@ impl CsrLayout {
     }
 }
 
-/// Writes the lower triangle as Matrix Market `coordinate real symmetric`, 1-based, 17 significant digits.
+/// Writes the lower triangle as Matrix Market `coordinate real symmetric`, 1-based, 17 significant digits, in
+/// the caller's numbering (entries sorted by column, then row).
 ///
 /// # Errors
 /// I/O errors of the writer; `InvalidInput` when `values` does not fit the pattern.
@@ -204,10 +246,17 @@ pub fn write_matrix_market(
     writeln!(out, "% hinge: lower triangle of the energy Hessian")?;
     writeln!(out, "{n} {n} {}", pattern.nnz())?;
     let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    // In the caller's numbering, each entry as (row ≥ column), sorted by column then row.
+    let mut entries: Vec<(usize, usize, usize)> = Vec::with_capacity(pattern.nnz());
     for c in 0..n {
         for k in cp[c]..cp[c + 1] {
-            writeln!(out, "{} {} {:.16e}", ri[k] + 1, c + 1, values[k])?;
+            let (a, b) = (pattern.caller_dof(ri[k]), pattern.caller_dof(c));
+            entries.push((a.min(b), a.max(b), k));
         }
+    }
+    entries.sort_unstable();
+    for (c, r, k) in entries {
+        writeln!(out, "{} {} {:.16e}", r + 1, c + 1, values[k])?;
     }
     out.flush()
 }

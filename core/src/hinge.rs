@@ -52,11 +52,25 @@
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 use crate::error::{DegenerateTriangle, HingeSide, StencilError};
-use crate::geometry::TriangleFrame;
-use crate::mesh::DEGENERACY_TOLERANCE;
+use crate::geometry::{DEGENERACY_TOLERANCE, TriangleFrame, accepts, pivot_cross};
 
 /// A hinge stencil `[x0, x1, x2, x3]`.
 pub type Stencil = [Vector3<f64>; 4];
+
+/// The stencil-vertex pairs `(a, b)`, `a ≥ b`, of a hinge's 10 lower-triangle 3×3 blocks, in the order the
+/// per-hinge kernels write them: the four diagonal blocks, then (1, 0), (2, 0), (3, 0), (2, 1), (3, 1), (3, 2).
+pub const BLOCK_PAIRS: [(usize, usize); 10] = [
+    (0, 0),
+    (1, 1),
+    (2, 2),
+    (3, 3),
+    (1, 0),
+    (2, 0),
+    (3, 0),
+    (2, 1),
+    (3, 1),
+    (3, 2),
+];
 
 /// θ, ∇θ and Hess θ of one stencil; coordinates ordered `x0.x, x0.y, x0.z, x1.x, …, x3.z`.
 #[derive(Debug, Clone, PartialEq)]
@@ -202,38 +216,12 @@ pub fn tan_half_angle(x: &Stencil) -> Result<f64, StencilError> {
 /// As [`HingeFrames::new`].
 #[inline]
 pub fn theta_and_gradient(x: &Stencil) -> Result<(f64, [Vector3<f64>; 4]), StencilError> {
+    let k = stencil_kernel(x)?;
     let [x0, x1, x2, x3] = x;
-    let e0 = x2 - x1;
+    let (u, v, e0, l0sq) = (k.u, k.v, k.e0, k.l0sq);
     let (a1, a2) = (x0 - x1, x0 - x2);
     let (b1, b2) = (x3 - x1, x3 - x2);
-    let l0sq = e0.norm_squared();
-    let (a1s, a2s, b1s, b2s) = (
-        a1.norm_squared(),
-        a2.norm_squared(),
-        b1.norm_squared(),
-        b2.norm_squared(),
-    );
-    let u = a1.cross(&a2); // (x0 − x1) × (x0 − x2) = (x1 − x0) × (x2 − x0)
-    let v = b2.cross(&b1); // (x3 − x2) × (x3 − x1) = (x2 − x3) × (x1 − x3)
-    let (uu, vv) = (u.norm_squared(), v.norm_squared());
-    let tol2 = DEGENERACY_TOLERANCE * DEGENERACY_TOLERANCE;
-    let lu = l0sq.max(a1s).max(a2s);
-    let lv = l0sq.max(b1s).max(b2s);
-    let scale = a1s.max(a2s).max(b1s).max(b2s);
-    let ok = l0sq > tol2 * scale
-        && uu > tol2 * lu * lu
-        && vv > tol2 * lv * lv
-        && (uu + vv + scale).is_finite();
-    if !ok {
-        // The precise error (which check, which vertex) from the reference path.
-        HingeFrames::new(x)?;
-        // Unreachable in practice: both paths test the same conditions. Report the upper triangle.
-        return Err(StencilError::AltitudeCollapse {
-            side: HingeSide::Upper,
-            vertex: 0,
-            relative_altitude: uu.sqrt() / lu,
-        });
-    }
+    let (uu, vv) = (k.uu, k.vv);
     let l0 = l0sq.sqrt();
     let (iu, iv) = (1.0 / uu, 1.0 / vv);
     let il0 = 1.0 / l0;
@@ -247,6 +235,71 @@ pub fn theta_and_gradient(x: &Stencil) -> Result<(f64, [Vector3<f64>; 4]), Stenc
         v * (-l0 * iv),
     ];
     Ok((theta, g))
+}
+
+/// What θ and ∇θ share: both triangles' pivot cross products (see [`crate::geometry`]) and the checks.
+struct StencilKernel {
+    u: Vector3<f64>,
+    v: Vector3<f64>,
+    uu: f64,
+    vv: f64,
+    e0: Vector3<f64>,
+    l0sq: f64,
+}
+
+/// Both triangles' pivot cross products `u` (of `T`) and `v` (of `T̃`), computed from the edge vectors in
+/// the triangles' own counter-clockwise order, so they are bitwise those of [`TriangleFrame::new`] for the
+/// same triangle listed from any corner, and the same degeneracy decision ([`crate::geometry::accepts`]).
+#[inline(always)]
+fn stencil_kernel(x: &Stencil) -> Result<StencilKernel, StencilError> {
+    let [x0, x1, x2, x3] = x;
+    // T = (x0, x1, x2): e = [x2 − x1, x0 − x2, x1 − x0]; T̃ = (x3, x2, x1): e = [x1 − x2, x3 − x1, x2 − x3].
+    let e0 = x2 - x1;
+    let eu = [e0, x0 - x2, x1 - x0];
+    let ev = [-e0, x3 - x1, x2 - x3];
+    let lu = [
+        eu[0].norm_squared(),
+        eu[1].norm_squared(),
+        eu[2].norm_squared(),
+    ];
+    let lv = [lu[0], ev[1].norm_squared(), ev[2].norm_squared()];
+    let (u, lu_max) = pivot_cross([x0, x1, x2], &eu, &lu);
+    let (v, lv_max) = pivot_cross([x3, x2, x1], &ev, &lv);
+    let (uu, vv) = (u.norm_squared(), v.norm_squared());
+    let l0sq = lu[0];
+    let scale = lu[1].max(lu[2]).max(lv[1]).max(lv[2]);
+    let tol2 = DEGENERACY_TOLERANCE * DEGENERACY_TOLERANCE;
+    let ok = l0sq > tol2 * scale && accepts(uu, lu_max) && accepts(vv, lv_max);
+    if !ok {
+        // The precise error (which check, which vertex) from the reference path.
+        HingeFrames::new(x)?;
+        // Unreachable in practice: both paths make the same decisions. Report the upper triangle.
+        return Err(StencilError::AltitudeCollapse {
+            side: HingeSide::Upper,
+            vertex: 0,
+            relative_altitude: uu.sqrt() / lu_max,
+        });
+    }
+    Ok(StencilKernel {
+        u,
+        v,
+        uu,
+        vv,
+        e0,
+        l0sq,
+    })
+}
+
+/// θ alone, with the same checks and bitwise the same value as [`theta_and_gradient`]: what an energy-only
+/// evaluation computes (no ∇θ).
+///
+/// # Errors
+/// As [`HingeFrames::new`].
+#[inline(always)]
+pub fn theta_only(x: &Stencil) -> Result<f64, StencilError> {
+    let k = stencil_kernel(x)?;
+    let il0 = 1.0 / k.l0sq.sqrt();
+    Ok((k.u.cross(&k.v).dot(&k.e0) * il0).atan2(k.u.dot(&k.v)))
 }
 
 /// θ and ∇θ (Eq. 4) of a stencil.

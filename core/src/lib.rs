@@ -112,6 +112,7 @@ pub mod obj;
 pub mod pattern;
 pub mod precise;
 pub mod psi;
+pub mod shapes;
 pub mod topology;
 
 pub use error::{DegenerateTriangle, EvalError, HingeSide, MeshError, ObjError, StencilError};

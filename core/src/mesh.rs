@@ -4,11 +4,7 @@ use nalgebra::Vector3;
 
 use crate::error::MeshError;
 
-/// Relative size below which a triangle's altitude counts as collapsed: a triangle is degenerate when
-/// `2·area ≤ DEGENERACY_TOLERANCE · (longest edge)²`, i.e. its smallest altitude is below about
-/// `DEGENERACY_TOLERANCE` times its longest edge. At that size the unit normal computed from a cross
-/// product has lost all its digits, so no formula that needs it can be trusted.
-pub const DEGENERACY_TOLERANCE: f64 = 16.0 * f64::EPSILON;
+pub use crate::geometry::DEGENERACY_TOLERANCE;
 
 /// A triangle mesh: vertex positions and triangles given as counter-clockwise vertex triples.
 ///

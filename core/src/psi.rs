@@ -111,9 +111,17 @@ pub trait HingePsi: Sync {
     /// non-finite; the engine reports it as a typed error naming the hinge.
     fn eval(&self, p: &Self::Params, theta: f64) -> [f64; 3];
 
-    /// ψ alone at θ (default: from [`HingePsi::eval`]).
+    /// ψ alone at θ (default: from [`HingePsi::eval`]): what an energy-only evaluation calls. Must equal
+    /// `eval(p, theta)[0]` bitwise (the derive generates a program of ψ's nodes alone).
     fn value(&self, p: &Self::Params, theta: f64) -> f64 {
         self.eval(p, theta)[0]
+    }
+
+    /// `[ψ, ψ′]` at θ (default: from [`HingePsi::eval`]): what a gradient-only evaluation calls. Must equal
+    /// the first two entries of `eval` bitwise.
+    fn eval_d1(&self, p: &Self::Params, theta: f64) -> [f64; 2] {
+        let [a, b, _] = self.eval(p, theta);
+        [a, b]
     }
 
     /// ψ for any dual scalar: the reference that `autodiff` and the tests differentiate.
@@ -144,6 +152,18 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
         let a = self.0.eval(&p.0, theta);
         let b = self.1.eval(&p.1, theta);
         [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+    }
+
+    #[inline]
+    fn value(&self, p: &Self::Params, theta: f64) -> f64 {
+        self.0.value(&p.0, theta) + self.1.value(&p.1, theta)
+    }
+
+    #[inline]
+    fn eval_d1(&self, p: &Self::Params, theta: f64) -> [f64; 2] {
+        let a = self.0.eval_d1(&p.0, theta);
+        let b = self.1.eval_d1(&p.1, theta);
+        [a[0] + b[0], a[1] + b[1]]
     }
 
     fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D {

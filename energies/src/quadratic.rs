@@ -14,6 +14,7 @@ use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
+use hinge_core::hinge::BLOCK_PAIRS as PAIRS;
 use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, Topology, TriMesh};
@@ -28,19 +29,6 @@ pub struct QuadraticBending {
     /// Per hinge: the 10 block slots of (a, b), a ≥ b in stencil order, with the Hessian value `c q_a q_b`.
     blocks: Vec<[(usize, f64); 10]>,
 }
-
-const PAIRS: [(usize, usize); 10] = [
-    (0, 0),
-    (1, 1),
-    (2, 2),
-    (3, 3),
-    (1, 0),
-    (2, 0),
-    (3, 0),
-    (2, 1),
-    (3, 1),
-    (3, 2),
-];
 
 fn cot(apex: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
     let (u, v) = (a - apex, b - apex);

@@ -405,6 +405,22 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
         })
         .collect();
     let outs: Vec<TokenStream> = roots.iter().map(|&r| operand(r)).collect();
+    // Energy-only and gradient-only programs: the same nodes' code, scheduled from fewer roots (their θ-free
+    // nodes are a subset of the hoisted ones), so ψ and ψ′ are bitwise those of `eval`.
+    let lets_for = |roots: &[Id]| -> Vec<TokenStream> {
+        theta_schedule(&arena, roots)
+            .0
+            .iter()
+            .map(|&id| {
+                let t = format_ident!("t{}", id.0);
+                let code = op_code(id, &operand);
+                quote!(let #t: f64 = #code;)
+            })
+            .collect()
+    };
+    let lets_value = lets_for(&[psi]);
+    let lets_d1 = lets_for(&[psi, d1]);
+    let (out_psi, out_d1) = (operand(psi), operand(d1));
     let d2_zero = arena.as_const(d2) == Some(0.0);
 
     // Generic ψ for num-dual (ψ root only), θ-dependent nodes as D, θ-free ones as f64.
@@ -495,6 +511,18 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
             #(#lets)*
             [#(#outs),*]
         }
+        #[inline]
+        #[allow(unused_variables, clippy::all)]
+        fn value(&self, p: &Self::Params, theta: f64) -> f64 {
+            #(#lets_value)*
+            #out_psi
+        }
+        #[inline]
+        #[allow(unused_variables, clippy::all)]
+        fn eval_d1(&self, p: &Self::Params, theta: f64) -> [f64; 2] {
+            #(#lets_d1)*
+            [#out_psi, #out_d1]
+        }
         #[allow(unused_variables, clippy::all)]
         fn psi_dual<D: ::hinge_core::__private::DualNum<Primitive = f64> + ::core::marker::Copy>(&self, p: &Self::Params, theta: D) -> D {
             #(#dual_lets)*
@@ -523,8 +551,15 @@ mod tests {
         );
         println!("{out}");
         // k·a and 2 tan(θ̄/2) are θ-free: computed in params, not in eval.
-        let eval =
-            &out[out.find("fn eval").expect("eval")..out.find("fn psi_dual").expect("psi_dual")];
+        let eval = &out[out.find("fn eval").expect("eval")..out.find("fn value").expect("value")];
+        // The energy-only program computes ψ alone: one tan, no ψ′ terms (tan² + 1).
+        let value =
+            &out[out.find("fn value").expect("value")..out.find("fn eval_d1").expect("eval_d1")];
+        assert_eq!(value.matches(". tan ()").count(), 1, "{value}");
+        assert!(
+            !value.contains("+ 1f64"),
+            "no ψ′ in the value program: {value}"
+        );
         assert!(!eval.contains("v0"), "fields are not read in eval: {eval}");
         assert_eq!(
             eval.matches(". tan ()").count(),

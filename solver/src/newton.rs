@@ -178,21 +178,28 @@ pub struct Reduced {
 }
 
 impl Reduced {
-    /// Eliminates the dofs with `free[i] == false`.
+    /// Eliminates the dofs with `free[i] == false` (`free` indexed by the caller's scalar dofs). The reduced
+    /// system keeps the pattern's storage order (a locality order): reduced dof `k` is the caller's dof
+    /// `dofs[k]`.
     pub fn new(pattern: &SymmetricPattern, free: &[bool]) -> Self {
         let n = pattern.dim();
+        // Storage scalar index → reduced index.
         let mut map = vec![usize::MAX; n];
         let mut dofs = Vec::new();
         for i in 0..n {
-            if free.get(i).copied().unwrap_or(true) {
+            let d = pattern.caller_dof(i);
+            if free.get(d).copied().unwrap_or(true) {
                 map[i] = dofs.len();
-                dofs.push(i);
+                dofs.push(d);
             }
         }
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         let mut col_ptr = vec![0usize];
         let (mut row_idx, mut source, mut diag) = (Vec::new(), Vec::new(), Vec::new());
-        for &c in &dofs {
+        for c in 0..n {
+            if map[c] == usize::MAX {
+                continue;
+            }
             for k in cp[c]..cp[c + 1] {
                 let r = ri[k];
                 if map[r] != usize::MAX {

@@ -93,15 +93,18 @@ pub fn sym_frobenius(col_ptr: &[usize], row_idx: &[usize], values: &[f64]) -> f6
     s.sqrt()
 }
 
-/// Dense full symmetric matrix (row-major `n × n`) from lower-triangle CSC storage.
-pub fn sym_dense(col_ptr: &[usize], row_idx: &[usize], values: &[f64]) -> Vec<f64> {
+/// Dense full symmetric matrix (row-major `n × n`, the caller's numbering) from a pattern's lower-triangle
+/// CSC storage (its storage order).
+pub fn sym_dense(pattern: &hinge_core::pattern::SymmetricPattern, values: &[f64]) -> Vec<f64> {
+    let (col_ptr, row_idx) = (pattern.col_ptr(), pattern.row_idx());
     let n = col_ptr.len() - 1;
     let mut d = vec![0.0; n * n];
     for c in 0..n {
+        let mc = pattern.caller_dof(c);
         for k in col_ptr[c]..col_ptr[c + 1] {
-            let r = row_idx[k];
-            d[r * n + c] = values[k];
-            d[c * n + r] = values[k];
+            let r = pattern.caller_dof(row_idx[k]);
+            d[r * n + mc] = values[k];
+            d[mc * n + r] = values[k];
         }
     }
     d

@@ -157,11 +157,7 @@ fn whole_mesh_gradient_and_hessian_match_finite_differences() {
             Parallelism::Sequential,
         )
         .unwrap();
-    let dense = sym_dense(
-        model.pattern().col_ptr(),
-        model.pattern().row_idx(),
-        &e.hessian,
-    );
+    let dense = sym_dense(model.pattern(), &e.hessian);
     let (fd_g, fd_h) = fd_energy_derivatives(&def, 1e-6, |y| {
         let r = model
             .evaluate(
@@ -381,7 +377,7 @@ fn exports_agree_with_each_other() {
         )
         .unwrap();
     let p = model.pattern();
-    let dense = sym_dense(p.col_ptr(), p.row_idx(), &e.hessian);
+    let dense = sym_dense(p, &e.hessian);
     let n = p.dim();
     // Full CSR holds both triangles, rows sorted, and equals the dense expansion.
     let (rp, ci, v) = hinge_core::export::full_csr(p, &e.hessian).unwrap();
@@ -404,11 +400,14 @@ fn exports_agree_with_each_other() {
     hinge_core::export::write_matrix_market(&mut buf, p, &e.hessian).unwrap();
     let text = String::from_utf8(buf).unwrap();
     assert!(text.starts_with("%%MatrixMarket matrix coordinate real symmetric"));
-    let vals: Vec<f64> = text
-        .lines()
-        .filter(|l| !l.starts_with('%'))
-        .skip(1)
-        .map(|l| l.split_whitespace().nth(2).unwrap().parse().unwrap())
-        .collect();
-    assert_eq!(vals, e.hessian);
+    // Entries (row ≥ column, 1-based, the caller's numbering) equal the dense expansion.
+    let mut count = 0;
+    for l in text.lines().filter(|l| !l.starts_with('%')).skip(1) {
+        let w: Vec<&str> = l.split_whitespace().collect();
+        let (r, c): (usize, usize) = (w[0].parse().unwrap(), w[1].parse().unwrap());
+        assert!(r >= c);
+        assert_eq!(w[2].parse::<f64>().unwrap(), dense[(r - 1) * n + c - 1]);
+        count += 1;
+    }
+    assert_eq!(count, p.nnz());
 }

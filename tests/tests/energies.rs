@@ -146,7 +146,7 @@ fn every_energy_matches_finite_differences() {
             (r.energy, r.gradient)
         });
         let p = sys.pattern();
-        let dense = sym_dense(p.col_ptr(), p.row_idx(), &ev.hessian);
+        let dense = sym_dense(p, &ev.hessian);
         let (eg, eh) = (rel_error(&ev.gradient, &fd_g), rel_error(&dense, &fd_h));
         println!(
             "{name:>18}: E {:.6e}  gradient vs FD {eg:.2e}  hessian vs FD {eh:.2e}",
@@ -285,16 +285,13 @@ fn systems_compose_additively_and_hinge_terms_share_one_pass() {
             *t += g;
         }
         let p = s.pattern();
-        for (t, h) in total_h
-            .iter_mut()
-            .zip(sym_dense(p.col_ptr(), p.row_idx(), &r.hessian))
-        {
+        for (t, h) in total_h.iter_mut().zip(sym_dense(p, &r.hessian)) {
             *t += h;
         }
     }
     assert!(((w.energy - total_e) / total_e).abs() < 1e-14);
     assert!(rel_error(&w.gradient, &total_g) < 1e-14);
-    assert!(rel_error(&sym_dense(wp.col_ptr(), wp.row_idx(), &w.hessian), &total_h) < 1e-14);
+    assert!(rel_error(&sym_dense(wp, &w.hessian), &total_h) < 1e-14);
 
     // Elastic + damping in one pass (a tuple) equals two passes.
     let mut one = System::new(
@@ -443,10 +440,7 @@ mod autodiff_oracle {
             .evaluate(x, Request::ALL, Parallelism::Sequential)
             .unwrap();
         let p = s.pattern();
-        (
-            r.gradient.clone(),
-            sym_dense(p.col_ptr(), p.row_idx(), &r.hessian),
-        )
+        (r.gradient.clone(), sym_dense(p, &r.hessian))
     }
 
     fn flat<const N: usize>(x: &[Vector3<f64>]) -> SVector<f64, N> {

@@ -291,7 +291,7 @@ fn a_step_that_cannot_converge_leaves_the_state_untouched() {
 fn min_eigenvalue(sys: &System, hessian: &[f64]) -> (f64, f64) {
     let p = sys.pattern();
     let n = p.dim();
-    let dense = sym_dense(p.col_ptr(), p.row_idx(), hessian);
+    let dense = sym_dense(p, hessian);
     let m = hinge_core::nalgebra::DMatrix::from_row_slice(n, n, &dense);
     let eig = m.symmetric_eigen();
     let min = eig
