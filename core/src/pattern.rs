@@ -402,3 +402,38 @@ impl SymmetricPattern {
             .map(|q| range.start + q)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn block_offsets_follow_from_the_first_offset_and_the_column_length() {
+        // A small irregular coupling set, in a non-identity order.
+        let pairs = [
+            (0, 1),
+            (1, 2),
+            (2, 0),
+            (2, 3),
+            (3, 4),
+            (4, 0),
+            (1, 4),
+            (5, 2),
+        ];
+        for p in [
+            SymmetricPattern::new(6, pairs).unwrap(),
+            SymmetricPattern::with_vertex_order(6, pairs, &[3, 1, 5, 0, 2, 4]).unwrap(),
+        ] {
+            for s in p.blocks() {
+                let col = p.storage_of(s.col as usize);
+                let len0 = p.col_ptr()[3 * col + 1] - p.col_ptr()[3 * col];
+                let off = crate::bending::scatter::block_offsets(
+                    s.offset[0] as usize,
+                    len0,
+                    s.row == s.col,
+                );
+                assert_eq!(off, s.offset.map(|o| o as usize), "{s:?}");
+            }
+        }
+    }
+}

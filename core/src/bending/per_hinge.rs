@@ -44,7 +44,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                 let hm = if project { project_psd(hm) } else { hm };
                 for (q, &(a, b)) in PAIRS.iter().enumerate() {
                     let blk: Matrix3<f64> = hm.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
-                    own.add_block(&slots[q], hv[a], hv[b], &blk);
+                    own.add_block(slots[q], hv[a], hv[b], &blk);
                 }
             }
             return Ok(());
@@ -103,11 +103,11 @@ impl<P: HingePsi> Ctx<'_, P> {
             let projected = project_psd(local);
             for (q, &(a, b)) in PAIRS.iter().enumerate() {
                 let blk: Matrix3<f64> = projected.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
-                own.add_block(&slots[q], hv[a], hv[b], &blk);
+                own.add_block(slots[q], hv[a], hv[b], &blk);
             }
         } else {
             for (q, &(a, b)) in PAIRS.iter().enumerate() {
-                own.add_block(&slots[q], hv[a], hv[b], &block(a, b));
+                own.add_block(slots[q], hv[a], hv[b], &block(a, b));
             }
         }
         Ok(())

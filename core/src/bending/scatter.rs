@@ -12,10 +12,24 @@ use super::{BendingModel, HessianMode, Method, Parallelism, Request};
 
 pub(super) const NONE: u32 = u32::MAX;
 
-/// Where a local block goes: the value offsets of its three columns (`[NONE; 3]` for a block the pattern
-/// does not hold). Stored per element so that adding a block reads no other table.
-pub(super) type Slot = [u32; 3];
-pub(super) const NO_SLOT: Slot = [NONE; 3];
+/// Where a local block goes: the value offset of its first stored entry (`NONE` for a block the pattern does
+/// not hold). The offsets in its other two scalar columns follow from the block column's length
+/// ([`block_offsets`]), so an element's slot table is a third of what three offsets per block would be: it
+/// is read once per evaluation, like the value array itself.
+pub(super) type Slot = u32;
+pub(super) const NO_SLOT: Slot = NONE;
+
+/// The value offsets of a block's three scalar columns from its first offset and the length `len0` of the
+/// first scalar column of its block column (see [`SymmetricPattern`](crate::pattern::SymmetricPattern)'s
+/// layout: the diagonal block stores 3, 2, 1 entries per column, an off-diagonal block 3 in each).
+#[inline(always)]
+pub(crate) fn block_offsets(first: usize, len0: usize, diagonal: bool) -> [usize; 3] {
+    if diagonal {
+        [first, first + len0, first + 2 * len0 - 1]
+    } else {
+        [first, first + len0 - 1, first + 2 * len0 - 3]
+    }
+}
 
 /// How a block `b = H[r][c]` lands in the stored lower block.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -77,6 +91,8 @@ pub(super) struct Owned<'a> {
     /// The owned gradient entries, storage order (empty when not requested).
     grad: &'a mut [f64],
     hess: &'a mut [f64],
+    /// Length of the first scalar column of each storage block column.
+    col_len: &'a [u32],
     /// Benchmark mode: blocks are folded into `checksum` instead of being written.
     local_only: bool,
     checksum: f64,
@@ -96,18 +112,17 @@ impl Owned<'_> {
 
     /// Adds block `b` for (row `r`, column `c`; storage positions) at `slot`, if this partition owns it.
     #[inline(always)]
-    pub fn add_block(&mut self, slot: &Slot, r: usize, c: usize, b: &Matrix3<f64>) {
+    pub fn add_block(&mut self, slot: Slot, r: usize, c: usize, b: &Matrix3<f64>) {
         if self.local_only {
             self.checksum += b[(0, 0)] + b[(1, 1)] + b[(2, 2)] + b[(2, 0)];
             return;
         }
-        let first = slot[0] as usize;
+        let first = slot as usize;
         // A block's three columns lie in one block column, so its first offset decides ownership. NONE
         // (a block the pattern does not hold) and an empty Hessian (not requested) fall outside too.
         if first < self.values.start || first >= self.values.end {
             return;
         }
-        let base = self.values.start;
         let orient = if r == c {
             Orient::Diagonal
         } else if r > c {
@@ -115,7 +130,8 @@ impl Owned<'_> {
         } else {
             Orient::Transposed
         };
-        let off = slot.map(|o| o as usize - base);
+        let len0 = self.col_len[r.min(c)] as usize;
+        let off = block_offsets(first - self.values.start, len0, r == c);
         add_block_values(self.hess, off, orient, b);
     }
 }
@@ -227,6 +243,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             },
             grad,
             hess,
+            col_len: &self.model.layout.col_len,
             local_only: self.local_only,
             checksum: 0.0,
         };

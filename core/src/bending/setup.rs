@@ -56,6 +56,8 @@ pub(super) struct Layout {
     pub hinge_slots: Vec<[Slot; 10]>,
     /// The partitions of pass 2.
     pub partitions: Vec<Partition>,
+    /// Per storage block column: the length of its first scalar column (for [`super::scatter::block_offsets`]).
+    pub col_len: Vec<u32>,
 }
 
 /// The vertex pairs of a hinge energy on `topology` (the caller's numbering).
@@ -158,7 +160,7 @@ impl Layout {
         let slot = |a: u32, b: u32| {
             pattern
                 .find_storage(a as usize, b as usize)
-                .map_or(NO_SLOT, |s| pattern.blocks()[s].offset)
+                .map_or(NO_SLOT, |s| pattern.blocks()[s].offset[0])
         };
         let tri_slots = tri_elements
             .iter()
@@ -216,6 +218,9 @@ impl Layout {
             state_vertices,
             hinge_slots,
             partitions: Vec::new(),
+            col_len: (0..pattern.n_vertices())
+                .map(|j| (pattern.col_ptr()[3 * j + 1] - pattern.col_ptr()[3 * j]) as u32)
+                .collect(),
         };
         layout.partitions = layout.build_partitions(pattern);
         layout

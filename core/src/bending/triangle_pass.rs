@@ -114,21 +114,16 @@ impl<P: HingePsi> Ctx<'_, P> {
                 blk[3 + k2] += g[2] * gr[0].transpose();
                 let hv = l.state_vertices[hid[k] as usize].map(|s| s as usize);
                 let x3 = hv[3];
-                own.add_block(&slots[6 + 4 * k], x3, x3, &(g[3] * gr[3].transpose()));
+                own.add_block(slots[6 + 4 * k], x3, x3, &(g[3] * gr[3].transpose()));
                 for a in 0..3 {
-                    own.add_block(
-                        &slots[7 + 4 * k + a],
-                        x3,
-                        hv[a],
-                        &(g[3] * gr[a].transpose()),
-                    );
+                    own.add_block(slots[7 + 4 * k + a], x3, hv[a], &(g[3] * gr[a].transpose()));
                 }
             }
         }
         for i in 0..3 {
-            own.add_block(&slots[i], v[i], v[i], &blk[i]);
+            own.add_block(slots[i], v[i], v[i], &blk[i]);
             let i1 = (i + 1) % 3;
-            own.add_block(&slots[3 + i], v[i], v[i1], &blk[3 + i]);
+            own.add_block(slots[3 + i], v[i], v[i1], &blk[3 + i]);
         }
         Ok(())
     }
