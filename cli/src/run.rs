@@ -29,7 +29,7 @@ use hinge_solver::linear::{
 };
 
 use crate::scene::Scene;
-use hinge_solver::newton::{ImplicitEuler, Newton, NewtonParams};
+use hinge_solver::newton::{FrameStats, ImplicitEuler, Newton, NewtonParams, SubstepPolicy};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -85,6 +85,14 @@ pub struct RunSummary {
     pub max_speed: f64,
     /// ‖∇F‖ over the free degrees of freedom after the last Newton solve.
     pub final_gradient_norm: f64,
+    /// Numeric factorizations attempted (failed shifted ones included), over every substep.
+    pub factorizations: usize,
+    /// Accepted substeps (one per frame when no step failed).
+    pub substeps: usize,
+    /// The largest final ‖∇F‖ over all steps.
+    pub max_final_gradient_norm: f64,
+    /// The smallest accepted substep as a fraction of the frame's dt.
+    pub smallest_substep_fraction: f64,
 }
 
 impl RunSummary {
@@ -261,6 +269,10 @@ pub fn equilibrium(
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
         final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
+        factorizations: stats.factorizations,
+        substeps: 0,
+        max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
+        smallest_substep_fraction: 1.0,
     };
     summary.add_timings(&mut system);
     if let Some(dir) = out {
@@ -302,7 +314,7 @@ pub fn simulate(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<&std::path::Path>,
-    mut progress: impl FnMut(usize, usize, f64, &[Vector3<f64>]),
+    mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
     let n = rest.n_vertices();
@@ -330,15 +342,36 @@ pub fn simulate(
         far_end_drop: 0.0,
         max_speed: 0.0,
         final_gradient_norm: f64::NAN,
+        factorizations: 0,
+        substeps: 0,
+        max_final_gradient_norm: 0.0,
+        smallest_substep_fraction: 1.0,
+    };
+    let policy = SubstepPolicy {
+        max_halvings: scene.solver.max_substep_halvings,
     };
     for frame in 0..scene.frames {
         let t = Instant::now();
-        let stats = stepper
-            .step(&mut system, &mut x, &mut v)
-            .map_err(|e| format!("frame {frame}: {e}"))?;
+        let fs = stepper
+            .advance(&mut system, &mut x, &mut v, policy)
+            .map_err(|e| {
+                format!(
+                    "frame {}: {e} (also in substeps down to dt/{}; {frame} frames completed)",
+                    frame + 1,
+                    1u64 << policy.max_halvings.min(30)
+                )
+            })?;
+        let stats = &fs.newton;
         summary.newton_iterations += stats.iterations;
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
         summary.line_search_steps += stats.line_search_steps;
+        summary.factorizations += stats.factorizations;
+        summary.substeps += fs.substeps;
+        summary.max_final_gradient_norm = summary
+            .max_final_gradient_norm
+            .max(fs.max_final_gradient_norm);
+        summary.smallest_substep_fraction =
+            summary.smallest_substep_fraction.min(fs.smallest_fraction);
         summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
         summary.add_timings(&mut system);
         if let Some(dir) = out {
@@ -349,7 +382,7 @@ pub fn simulate(
             )
             .map_err(|e| e.to_string())?;
         }
-        progress(frame, stats.iterations, t.elapsed().as_secs_f64(), &x);
+        progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
     }
     summary.min_clearance = min_clearance(&spheres, &x);
     summary.far_end_drop = far_end_drop(rest, &x);
@@ -406,10 +439,14 @@ pub fn run(args: RunArgs) -> Result<(), String> {
                 &scene,
                 &rest,
                 frames_dir,
-                |frame, iterations, seconds, _| {
+                |frame, fs, seconds, _| {
                     println!(
-                        "frame {:>4}/{frames}: {iterations} Newton iterations, {:.1} ms",
+                        "frame {:>4}/{frames}: {} Newton iterations, {} factorizations, {} substep{}, {:.1} ms",
                         frame + 1,
+                        fs.newton.iterations,
+                        fs.newton.factorizations,
+                        fs.substeps,
+                        if fs.substeps == 1 { "" } else { "s" },
                         seconds * 1e3
                     );
                     let _ = std::io::stdout().flush();
@@ -423,6 +460,10 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         "n_vertices": summary.n_vertices,
         "newton_iterations": summary.newton_iterations,
         "line_search_steps": summary.line_search_steps,
+        "factorizations": summary.factorizations,
+        "substeps": summary.substeps,
+        "smallest_substep_fraction": summary.smallest_substep_fraction,
+        "max_final_gradient_norm": summary.max_final_gradient_norm,
         "seconds": {
             "bending_evaluation_and_assembly": summary.bending_seconds,
             "other_energies": summary.other_energy_seconds,
@@ -441,10 +482,13 @@ pub fn run(args: RunArgs) -> Result<(), String> {
     )
     .map_err(|e| format!("{}: {e}", path.display()))?;
     println!(
-        "done: {} frames, {} Newton iterations ({} line-search halvings); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
+        "done: {} frames, {} Newton iterations ({} line-search halvings, {} factorizations, {} substeps, largest final gradient norm {:.2e}); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
         summary.frames,
         summary.newton_iterations,
         summary.line_search_steps,
+        summary.factorizations,
+        summary.substeps,
+        summary.max_final_gradient_norm,
         summary.bending_seconds,
         summary.other_energy_seconds,
         summary.linear_solve_seconds,

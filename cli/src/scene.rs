@@ -178,6 +178,14 @@ pub struct SolverSpec {
     /// Newton gradient tolerance.
     #[serde(default = "default_tolerance")]
     pub gradient_tolerance: f64,
+    /// A frame whose step fails is retried in substeps, halving down to `dt / 2^max_substep_halvings`
+    /// (0 to 30; default 5, i.e. dt/32) before the run stops.
+    #[serde(default = "default_halvings")]
+    pub max_substep_halvings: u32,
+}
+
+fn default_halvings() -> u32 {
+    5
 }
 
 fn default_backend() -> String {
@@ -196,6 +204,7 @@ impl Default for SolverSpec {
             backend: default_backend(),
             max_iterations: default_iterations(),
             gradient_tolerance: default_tolerance(),
+            max_substep_halvings: default_halvings(),
         }
     }
 }

@@ -584,3 +584,69 @@ fn report_quick_writes_tables_json_and_plots() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_line() {
+    let dir = tmp("substeps");
+    let shown = hinge(&["scenes", "show", "drape"]);
+    let text = String::from_utf8_lossy(&shown.stdout).to_string();
+    let with = |max_iterations: usize, halvings: u32| {
+        text.replace(
+            "max_iterations = 300",
+            &format!("max_iterations = {max_iterations}"),
+        )
+        .replace(
+            "gradient_tolerance = 1e-6",
+            &format!("gradient_tolerance = 1e-6\nmax_substep_halvings = {halvings}"),
+        )
+    };
+    // Four Newton iterations per attempt: frames need substeps (counted in summary.json).
+    let file = dir.join("tight.toml");
+    std::fs::write(&file, with(4, 5)).unwrap();
+    let out = dir.join("tight");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "8",
+        "--resolution",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+        "--no-frames",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let substeps = summary["substeps"].as_u64().unwrap();
+    let iterations = summary["newton_iterations"].as_u64().unwrap();
+    assert!(substeps > 8, "substeps {substeps}");
+    assert!(summary["factorizations"].as_u64().unwrap() >= iterations);
+    assert!(summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("frame    1/8: "), "{stdout}");
+    assert!(stdout.contains(" factorizations, "), "{stdout}");
+    // One iteration and one halving allowed: the run stops with one line naming the frame, frames written.
+    let file = dir.join("hopeless.toml");
+    std::fs::write(&file, with(1, 1)).unwrap();
+    let out = dir.join("hopeless");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "40",
+        "--resolution",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("frame ") && err.contains("dt/2"), "{err}");
+    assert!(
+        out.join("frame_0000.obj").exists(),
+        "the good frames are written"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -113,6 +113,8 @@ pub struct NewtonStats {
     pub iterations: usize,
     /// Line-search halvings, summed.
     pub line_search_steps: usize,
+    /// Numeric factorizations attempted (failed shifted ones included).
+    pub factorizations: usize,
     /// ‖∇F‖ over the free degrees of freedom after each iteration (the first entry is the start).
     pub gradient_norms: Vec<f64>,
     /// ‖Δx‖ of each accepted step (near the solution, the error of the iterate before it).
@@ -162,6 +164,65 @@ pub enum SolverError {
     /// Inputs that do not fit (sizes, non-finite time step).
     #[error("{0}")]
     Input(String),
+}
+
+impl NewtonStats {
+    /// Adds another solve's counters and times (iterations, halvings, factorizations, seconds; the largest
+    /// shift; the norms are appended).
+    pub fn absorb(&mut self, other: &NewtonStats) {
+        self.iterations += other.iterations;
+        self.line_search_steps += other.line_search_steps;
+        self.factorizations += other.factorizations;
+        self.gradient_norms.extend_from_slice(&other.gradient_norms);
+        self.step_norms.extend_from_slice(&other.step_norms);
+        self.max_shift = self.max_shift.max(other.max_shift);
+        self.eval_seconds += other.eval_seconds;
+        self.factor_seconds += other.factor_seconds;
+        self.solve_seconds += other.solve_seconds;
+    }
+}
+
+impl SolverError {
+    /// What the failed solve did before it stopped (empty for input errors).
+    pub fn stats(&self) -> NewtonStats {
+        match self {
+            SolverError::Eval { stats, .. }
+            | SolverError::Linear { stats, .. }
+            | SolverError::LineSearch { stats }
+            | SolverError::NotConverged { stats } => (**stats).clone(),
+            SolverError::Input(_) => NewtonStats::default(),
+        }
+    }
+}
+
+/// How [`ImplicitEuler::advance`] splits a frame when a step fails: halve the substep (retrying from the same
+/// state), down to `dt / 2^max_halvings`, and after each success grow it back (doubling, never beyond the
+/// frame's dt).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SubstepPolicy {
+    /// The floor: the smallest substep is `dt / 2^max_halvings` (at most 30). Default 5 (dt/32).
+    pub max_halvings: u32,
+}
+
+impl Default for SubstepPolicy {
+    fn default() -> Self {
+        Self { max_halvings: 5 }
+    }
+}
+
+/// What [`ImplicitEuler::advance`] did for one frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameStats {
+    /// Newton counters summed over every attempt, failed substeps included (their work was done).
+    pub newton: NewtonStats,
+    /// Accepted substeps (1 when the frame's dt worked at once).
+    pub substeps: usize,
+    /// Failed attempts that were retried with a smaller substep.
+    pub failed_attempts: usize,
+    /// The smallest accepted substep as a fraction of the frame's dt.
+    pub smallest_fraction: f64,
+    /// The largest final ‖∇F‖ over the accepted substeps.
+    pub max_final_gradient_norm: f64,
 }
 
 /// The free-dof subsystem of a pattern: reduced lower CSC and where each reduced value comes from.
@@ -399,6 +460,7 @@ impl Newton {
                     let t = Instant::now();
                     let r = self.solver.factor(&self.shifted);
                     stats.factor_seconds += t.elapsed().as_secs_f64();
+                    stats.factorizations += 1;
                     match r {
                         Ok(()) => break,
                         Err(LinearError::NotPositiveDefinite { .. }) if attempts < p.max_shifts => {
@@ -501,6 +563,9 @@ pub struct ImplicitEuler {
     pub masses: Vec<f64>,
     newton: Newton,
     pins: Pins,
+    /// The start positions and step of the last accepted step: the system's step state (damping's θ_prev,
+    /// drag's previous positions) is set back to them when an attempt fails.
+    committed: Option<(Vec<Vector3<f64>>, f64)>,
 }
 
 impl std::fmt::Debug for ImplicitEuler {
@@ -538,6 +603,7 @@ impl ImplicitEuler {
             masses,
             newton,
             pins,
+            committed: None,
         })
     }
 
@@ -546,8 +612,16 @@ impl ImplicitEuler {
         &self.newton
     }
 
-    /// One step: minimises the incremental potential from `x̂ = x + Δt v` (pinned vertices stay put and keep
-    /// zero velocity), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are unchanged.
+    /// The Newton solver, to change its parameters between steps.
+    pub fn newton_mut(&mut self) -> &mut Newton {
+        &mut self.newton
+    }
+
+    /// One step of [`ImplicitEuler::dt`]: minimises the incremental potential from `x̂ = x + Δt v` (pinned
+    /// vertices stay put and keep zero velocity), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are
+    /// unchanged, and the system's step state (damping's θ_prev, drag's previous positions) is set back to
+    /// that of the last accepted step (before any step was accepted, it stays as set for this attempt's
+    /// start, which is what a retry sets again).
     ///
     /// # Errors
     /// [`SolverError`] with diagnostics.
@@ -557,6 +631,17 @@ impl ImplicitEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
     ) -> Result<NewtonStats, SolverError> {
+        self.step_dt(system, x, v, self.dt)
+    }
+
+    /// One step of size `dt` (see [`ImplicitEuler::step`]).
+    fn step_dt(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+        dt: f64,
+    ) -> Result<NewtonStats, SolverError> {
         let n = system.n_vertices();
         if x.len() != n || v.len() != n {
             return Err(SolverError::Input(format!(
@@ -565,29 +650,106 @@ impl ImplicitEuler {
                 v.len()
             )));
         }
-        let dt = self.dt;
         let mut x_hat: Vec<Vector3<f64>> =
             x.iter().zip(v.iter()).map(|(p, w)| p + w * dt).collect();
         for &pv in self.pins.vertices() {
             x_hat[pv] = x[pv];
         }
-        system
+        let result = system
             .begin_step(x, dt)
             .map_err(|source| SolverError::Eval {
                 source,
                 stats: Box::default(),
-            })?;
-        let inertia = Inertia {
-            masses: self.masses.clone(),
-            x_hat: x_hat.clone(),
-            dt,
-        };
-        let mut next = x_hat;
-        let stats = self.newton.minimize(system, &mut next, Some(&inertia))?;
-        for i in 0..n {
-            v[i] = (next[i] - x[i]) / dt;
-            x[i] = next[i];
+            })
+            .and_then(|()| {
+                let inertia = Inertia {
+                    masses: self.masses.clone(),
+                    x_hat: x_hat.clone(),
+                    dt,
+                };
+                let mut next = x_hat;
+                let stats = self.newton.minimize(system, &mut next, Some(&inertia))?;
+                Ok((next, stats))
+            });
+        match result {
+            Ok((next, stats)) => {
+                self.committed = Some((x.to_vec(), dt));
+                for i in 0..n {
+                    v[i] = (next[i] - x[i]) / dt;
+                    x[i] = next[i];
+                }
+                Ok(stats)
+            }
+            Err(e) => {
+                self.restore_step_state(system);
+                Err(e)
+            }
         }
-        Ok(stats)
+    }
+
+    /// Sets the system's step state back to the last accepted step's.
+    fn restore_step_state(&self, system: &mut System) {
+        if let Some((xp, dtp)) = &self.committed {
+            // The same call succeeded when that step was accepted, on the same positions.
+            let _ = system.begin_step(xp, *dtp);
+        }
+    }
+
+    /// Advances by one frame of [`ImplicitEuler::dt`], splitting it into substeps when a step fails (see
+    /// [`SubstepPolicy`]): a failed attempt is retried from the same state with half the substep, an
+    /// accepted one lets the next grow back (doubling, aligned so that the substeps tile the frame
+    /// exactly). Step state is committed per accepted substep only. Below the floor the frame fails: `x` and
+    /// `v` are then those of the frame's start, and so is the system's step state (if no step was ever
+    /// accepted, it stays as set for the last attempt's start, which is what a retry sets again).
+    ///
+    /// # Errors
+    /// The last attempt's [`SolverError`] when a substep of `dt / 2^max_halvings` fails too.
+    pub fn advance(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+        policy: SubstepPolicy,
+    ) -> Result<FrameStats, SolverError> {
+        let levels = policy.max_halvings.min(30);
+        let total: u64 = 1 << levels;
+        let (x0, v0) = (x.to_vec(), v.to_vec());
+        let committed0 = self.committed.clone();
+        let mut fs = FrameStats {
+            smallest_fraction: 1.0,
+            ..FrameStats::default()
+        };
+        let (mut t, mut level) = (0u64, 0u32);
+        while t < total {
+            let h = total >> level;
+            let dt = self.dt * (h as f64 / total as f64);
+            match self.step_dt(system, x, v, dt) {
+                Ok(s) => {
+                    fs.newton.absorb(&s);
+                    fs.substeps += 1;
+                    fs.smallest_fraction = fs.smallest_fraction.min(h as f64 / total as f64);
+                    let g = s.gradient_norms.last().copied().unwrap_or(0.0);
+                    fs.max_final_gradient_norm = fs.max_final_gradient_norm.max(g);
+                    t += h;
+                    // Grow back when the next, doubled substep starts on its own grid.
+                    if level > 0 && t % (total >> (level - 1)) == 0 {
+                        level -= 1;
+                    }
+                }
+                Err(e) => {
+                    fs.newton.absorb(&e.stats());
+                    if level >= levels || matches!(e, SolverError::Input(_)) {
+                        x.copy_from_slice(&x0);
+                        v.copy_from_slice(&v0);
+                        self.committed = committed0;
+                        self.restore_step_state(system);
+                        return Err(e);
+                    }
+                    fs.failed_attempts += 1;
+                    level += 1;
+                }
+            }
+        }
+        Ok(fs)
     }
 }

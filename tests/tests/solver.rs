@@ -6,7 +6,7 @@ use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
-use hinge_energies::bending::DiscreteShells;
+use hinge_energies::bending::{DiscreteShells, ViscousDamping};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::pins::Pins;
 use hinge_energies::quadratic::QuadraticBending;
@@ -14,7 +14,9 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::linear::{
     ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearError, LinearSolver, PcgJacobi, default_solver,
 };
-use hinge_solver::newton::{ImplicitEuler, Inertia, Newton, NewtonParams, Reduced, SolverError};
+use hinge_solver::newton::{
+    ImplicitEuler, Inertia, Newton, NewtonParams, Reduced, SolverError, SubstepPolicy,
+};
 use hinge_tests::*;
 
 fn cloth(n: usize) -> TriMesh {
@@ -432,4 +434,168 @@ fn damped_retries_rescue_a_near_singular_newton_step() {
     assert!(stats.max_shift > 0.0);
     // The sheet hangs below the pinned row.
     assert!(x[n - 1].z < -0.5, "{}", x[n - 1]);
+}
+
+/// A stretched, spinning cloth pinned at one corner with a Newton budget too small for a full 1 s step.
+fn hard_stepper(
+    max_iterations: usize,
+    dt: f64,
+) -> (System, ImplicitEuler, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+    let rest = cloth(6);
+    let n = rest.n_vertices();
+    let sys = spring_system(&rest, true);
+    let params = NewtonParams {
+        max_iterations,
+        ..NewtonParams::default()
+    };
+    let stepper = ImplicitEuler::new(
+        &sys,
+        dt,
+        lumped_masses(&rest, 1.0),
+        Pins::new(n, vec![0]).unwrap(),
+        Box::new(FaerLlt::default()),
+        params,
+    )
+    .unwrap();
+    let mut x: Vec<_> = rest.positions().iter().map(|p| p * 1.3).collect();
+    x[0] = rest.positions()[0];
+    let v: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(-p.y, p.x, 0.5) * 4.0)
+        .collect();
+    (sys, stepper, x, v)
+}
+
+fn total_energy(sys: &mut System, masses: &[f64], x: &[Vector3<f64>], v: &[Vector3<f64>]) -> f64 {
+    let e = sys
+        .evaluate(x, Request::VALUE, Parallelism::Sequential)
+        .unwrap()
+        .energy;
+    e + v
+        .iter()
+        .zip(masses)
+        .map(|(w, m)| 0.5 * m * w.norm_squared())
+        .sum::<f64>()
+}
+
+#[test]
+fn a_failed_step_is_retried_in_substeps_that_tile_the_frame() {
+    // 6 Newton iterations are not enough for the 1 s step (measured: the full step fails), enough for
+    // smaller ones.
+    let (mut sys, mut stepper, mut x, mut v) = hard_stepper(6, 1.0);
+    let masses = lumped_masses(&cloth(6), 1.0);
+    let (x0, v0) = (x.clone(), v.clone());
+    let e0 = total_energy(&mut sys, &masses, &x, &v);
+    let err = stepper.step(&mut sys, &mut x, &mut v).unwrap_err();
+    assert!(matches!(err, SolverError::NotConverged { .. }), "{err}");
+    assert_eq!(
+        (&x, &v),
+        (&x0, &v0),
+        "a failed step leaves the state untouched"
+    );
+    let fs = stepper
+        .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap();
+    println!(
+        "substeps {} (failed attempts {}), smallest dt/{}, {} Newton iterations, {} factorizations",
+        fs.substeps,
+        fs.failed_attempts,
+        1.0 / fs.smallest_fraction,
+        fs.newton.iterations,
+        fs.newton.factorizations
+    );
+    assert!(fs.substeps > 1 && fs.failed_attempts >= 1);
+    assert!(fs.smallest_fraction >= 1.0 / 32.0);
+    assert!(fs.newton.factorizations >= fs.newton.iterations);
+    assert!(fs.max_final_gradient_norm <= NewtonParams::default().gradient_tolerance);
+    // Implicit Euler without damping never gains energy, whatever the step sizes.
+    let e1 = total_energy(&mut sys, &masses, &x, &v);
+    assert!(e1 <= e0 * (1.0 + 1e-12), "{e1} > {e0}");
+    assert_eq!(x[0], x0[0], "the pin stays put");
+}
+
+#[test]
+fn a_frame_that_fails_below_the_floor_leaves_everything_untouched() {
+    // Two Newton iterations are too few even at dt/32 (measured).
+    let (mut sys, mut stepper, mut x, mut v) = hard_stepper(2, 1.0);
+    let (x0, v0) = (x.clone(), v.clone());
+    let err = stepper
+        .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap_err();
+    assert!(err.to_string().contains("no convergence"), "{err}");
+    assert_eq!((x, v), (x0, v0));
+}
+
+#[test]
+fn a_frame_without_failures_is_exactly_one_step() {
+    let (mut sys, mut a, mut x, mut v) = hard_stepper(20, 0.25);
+    let (mut sys2, mut b, mut x2, mut v2) = hard_stepper(20, 0.25);
+    let fs = a
+        .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap();
+    let s = b.step(&mut sys2, &mut x2, &mut v2).unwrap();
+    assert_eq!((fs.substeps, fs.failed_attempts), (1, 0));
+    assert_eq!(fs.newton.iterations, s.iterations);
+    assert_eq!((x, v), (x2, v2), "bitwise the same as one step");
+}
+
+#[test]
+fn a_failed_step_does_not_advance_the_damping_state() {
+    let rest = cloth(5);
+    let n = rest.n_vertices();
+    let damped = BendingModel::new(
+        &rest,
+        (DiscreteShells { k: 0.01 }, ViscousDamping { kd: 0.5 }),
+    )
+    .unwrap();
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(MassSpring::new(&rest, 200.0).unwrap()),
+        Box::new(HingeTerm::new("bending", damped, Method::Refactored)),
+    ];
+    let mut sys = System::new(n, terms).unwrap();
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        0.05,
+        lumped_masses(&rest, 1.0),
+        Pins::new(n, vec![0]).unwrap(),
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut x: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 0.1 * (3.0 * p.x).sin()))
+        .collect();
+    let mut v = vec![Vector3::new(0.0, 0.0, 0.3); n];
+    v[0] = Vector3::zeros();
+    stepper.step(&mut sys, &mut x, &mut v).unwrap();
+    // The damping energy depends on θ_prev (the start of the last accepted step) and dt.
+    let probe: Vec<_> = x.iter().map(|p| p * 1.01).collect();
+    let at = |sys: &mut System| {
+        sys.evaluate(&probe, Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy
+    };
+    let before = at(&mut sys);
+    stepper.newton_mut().params.max_iterations = 0;
+    let (x1, v1) = (x.clone(), v.clone());
+    assert!(stepper.step(&mut sys, &mut x, &mut v).is_err());
+    assert_eq!((&x, &v), (&x1, &v1));
+    assert_eq!(
+        at(&mut sys).to_bits(),
+        before.to_bits(),
+        "the failed step's θ_prev was not kept"
+    );
+    assert!(
+        stepper
+            .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
+            .is_err()
+    );
+    assert_eq!(at(&mut sys).to_bits(), before.to_bits());
+    // And a successful step does move it (the check above could fail).
+    stepper.newton_mut().params.max_iterations = 100;
+    stepper.step(&mut sys, &mut x, &mut v).unwrap();
+    assert_ne!(at(&mut sys).to_bits(), before.to_bits());
 }
