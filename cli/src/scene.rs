@@ -10,8 +10,9 @@ use hinge_core::nalgebra::Vector3;
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
-pub const BUILT_IN: [(&str, &str); 6] = [
+pub const BUILT_IN: [(&str, &str); 7] = [
     ("drape", include_str!("../scenes/drape.toml")),
+    ("shell-drop", include_str!("../scenes/shell-drop.toml")),
     ("beam1", include_str!("../scenes/beam1.toml")),
     ("beam2", include_str!("../scenes/beam2.toml")),
     ("beam3", include_str!("../scenes/beam3.toml")),
@@ -77,6 +78,13 @@ pub struct MeshSpec {
     pub diagonal: String,
     /// An OBJ file instead of a grid (relative to the scene file).
     pub obj: Option<PathBuf>,
+    /// A closed surface generated in code instead of a grid: `icosphere` (a subdivided icosahedron centred
+    /// at `origin`, `10·4^subdivisions + 2` vertices; `--resolution N` sets the subdivisions).
+    pub shape: Option<String>,
+    /// Subdivisions of the icosphere (0 to 7).
+    pub subdivisions: Option<usize>,
+    /// Radius of the icosphere (m).
+    pub radius: Option<f64>,
 }
 
 fn unit_size() -> [f64; 2] {
@@ -319,11 +327,33 @@ impl Scene {
                 self.bending.energy
             ));
         }
-        match (&self.mesh.cells, &self.mesh.obj) {
-            (Some(c), None) if c[0] >= 1 && c[1] >= 1 => {}
-            (Some(_), None) => return Err("mesh.cells: need at least one cell each way".into()),
-            (None, Some(_)) => {}
-            _ => return Err("mesh: give exactly one of `cells` (a grid) or `obj` (a file)".into()),
+        match (&self.mesh.cells, &self.mesh.obj, &self.mesh.shape) {
+            (Some(c), None, None) if c[0] >= 1 && c[1] >= 1 => {}
+            (Some(_), None, None) => {
+                return Err("mesh.cells: need at least one cell each way".into());
+            }
+            (None, Some(_), None) => {}
+            (None, None, Some(shape)) => {
+                if shape != "icosphere" {
+                    return Err(format!("mesh.shape: unknown `{shape}` (icosphere)"));
+                }
+                match self.mesh.subdivisions {
+                    Some(0..=7) => {}
+                    Some(k) => return Err(format!("mesh.subdivisions: {k} is above 7")),
+                    None => return Err("mesh: an icosphere needs `subdivisions`".into()),
+                }
+                positive(
+                    "mesh.radius",
+                    self.mesh
+                        .radius
+                        .ok_or("mesh: an icosphere needs `radius`")?,
+                )?;
+            }
+            _ => {
+                return Err(
+                    "mesh: give exactly one of `cells` (a grid), `obj` (a file) or `shape`".into(),
+                );
+            }
         }
         if !["forward", "backward", "alternating"].contains(&self.mesh.diagonal.as_str()) {
             return Err(format!(
@@ -374,6 +404,15 @@ impl Scene {
     /// Scales a grid's cells so that it has `cells_x` cells along x (y scaled alike), or, for scenes that
     /// list `mesh.resolutions`, selects entry `cells_x` (1-based).
     pub fn set_resolution(&mut self, cells_x: usize) -> Result<(), String> {
+        if self.mesh.shape.is_some() {
+            if cells_x > 7 {
+                return Err(format!(
+                    "--resolution {cells_x}: an icosphere has subdivision levels 0 to 7"
+                ));
+            }
+            self.mesh.subdivisions = Some(cells_x);
+            return Ok(());
+        }
         let Some(c) = self.mesh.cells.as_mut() else {
             return Err("--resolution applies to grid scenes only".into());
         };
@@ -437,6 +476,16 @@ impl Scene {
             let path = base.map_or(obj.clone(), |b| b.join(obj));
             return hinge_core::obj::read_obj(&path).map_err(|e| e.to_string());
         }
+        let o = Vector3::from(self.mesh.origin);
+        if self.mesh.shape.is_some() {
+            let m = hinge_core::shapes::icosphere(
+                self.mesh.subdivisions.unwrap_or(0),
+                self.mesh.radius.unwrap_or(1.0),
+            )
+            .map_err(|e| format!("mesh: {e}"))?;
+            let moved = m.positions().iter().map(|p| p + o).collect();
+            return m.with_positions(moved).map_err(|e| format!("mesh: {e}"));
+        }
         let c = self.mesh.cells.unwrap_or([1, 1]);
         let diagonal = match self.mesh.diagonal.as_str() {
             "forward" => Diagonal::Forward,
@@ -445,7 +494,6 @@ impl Scene {
         };
         let g = grid(c[0], c[1], self.mesh.size[0], self.mesh.size[1], diagonal)
             .map_err(|e| format!("mesh: {e}"))?;
-        let o = Vector3::from(self.mesh.origin);
         let moved = g.positions().iter().map(|p| p + o).collect();
         g.with_positions(moved).map_err(|e| format!("mesh: {e}"))
     }
