@@ -10,9 +10,8 @@ use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{unit_grid, wave};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::precise::{Dd, Jet, reference_hinge_hessian};
+use hinge_core::precise::{Dd, Jet};
 use hinge_energies::bending::TanBending;
-use rayon::prelude::*;
 use serde_json::{Value, json};
 
 use crate::plot::{PALETTE, Plot, Series, render_png};
@@ -33,66 +32,19 @@ pub struct ReportArgs {
 /// double-double into the model's pattern (lower CSC order).
 pub fn reference_hessian(model: &BendingModel<TanBending>, x: &[Vector3<f64>]) -> Vec<Dd> {
     let k = model.psi().k;
-    let hinges = model.topology().hinges();
     let rest = model.rest_hinges();
-    let locals: Vec<[[Dd; 12]; 12]> = hinges
-        .par_iter()
-        .zip(rest.par_iter())
-        .map(|(h, r)| {
-            let mut s = [0.0; 12];
-            for (a, &v) in h.vertices.iter().enumerate() {
-                s[3 * a..3 * a + 3].copy_from_slice(x[v].as_slice());
-            }
-            let ka = Dd::from(k) * Dd::from(r.a);
-            let phi_bar = Dd::from(r.theta_bar * 0.5).tan() * 2.0;
-            let (_, _, hess) = reference_hinge_hessian(&s, |t| {
-                let d = (t * Dd::from(0.5)).tan() * Dd::from(2.0) - Jet::constant(phi_bar);
-                (d * d) * ka
-            });
-            hess
-        })
-        .collect();
-    let pattern = model.pattern();
-    let mut values = vec![Dd::default(); pattern.nnz()];
-    for (h, local) in hinges.iter().zip(&locals) {
-        for a in 0..4 {
-            for b in 0..4 {
-                let (va, vb) = (h.vertices[a], h.vertices[b]);
-                // The stored lower block is the one whose row comes later in the pattern's storage order.
-                if pattern.storage_of(va) < pattern.storage_of(vb) {
-                    continue;
-                }
-                let Some(slot) = pattern.find(va, vb) else {
-                    continue;
-                };
-                let off = pattern.blocks()[slot].offset;
-                for c in 0..3 {
-                    let rows = if va == vb { c..3 } else { 0..3 };
-                    for r in rows {
-                        let o = off[c] as usize + if va == vb { r - c } else { r };
-                        values[o] = values[o] + local[3 * a + r][3 * b + c];
-                    }
-                }
-            }
-        }
-    }
-    values
+    hinge_core::precise::reference_hessian(model, x, |h, t| {
+        let r = &rest[h];
+        let ka = Dd::from(k) * Dd::from(r.a);
+        let phi_bar = Dd::from(r.theta_bar * 0.5).tan() * 2.0;
+        let d = (t * Dd::from(0.5)).tan() * Dd::from(2.0) - Jet::constant(phi_bar);
+        (d * d) * ka
+    })
 }
 
 /// ‖H − H_ref‖_F / ‖H_ref‖_F over the full symmetric matrix, in units of 2⁻⁵³.
 fn ulps(model: &BendingModel<TanBending>, h: &[f64], href: &[Dd]) -> f64 {
-    let p = model.pattern();
-    // Off-diagonal entries of the stored lower triangle count twice in the full matrix.
-    let col_of: Vec<usize> = (0..p.dim())
-        .flat_map(|c| std::iter::repeat_n(c, p.col_ptr()[c + 1] - p.col_ptr()[c]))
-        .collect();
-    hinge_core::precise::ulps_weighted(h, href, |k| {
-        if p.row_idx()[k] == col_of[k] {
-            1.0
-        } else {
-            2.0
-        }
-    })
+    hinge_core::precise::hessian_ulps(model.pattern(), h, href)
 }
 
 /// Median seconds of `f` over repeated runs: at least 3 runs and 0.2 s unless one run takes over a second,

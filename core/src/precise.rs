@@ -425,6 +425,76 @@ pub fn ulps(a: &[f64], r: &[Dd]) -> f64 {
     ulps_weighted(a, r, |_| 1.0)
 }
 
+/// The reference Hessian of `Σ_h ψ_h(θ_h)` over `model`'s hinges at `x`, each hinge's 12×12 Hessian computed
+/// in double-double by [`reference_hinge_hessian`] and assembled into `model`'s pattern (its lower CSC values,
+/// storage order). `psi(h, θ)` maps hinge `h`'s θ jet to its ψ jet (use [`crate::bending::BendingModel::rest_hinges`]
+/// for θ̄ and `a`). What `hinge report`, `hinge stability` and the tests compare every method against.
+pub fn reference_hessian<P: crate::psi::HingePsi>(
+    model: &crate::bending::BendingModel<P>,
+    x: &[nalgebra::Vector3<f64>],
+    psi: impl Fn(usize, Jet) -> Jet + Sync,
+) -> Vec<Dd> {
+    let hinges = model.topology().hinges();
+    let local = |i: usize| {
+        let mut s = [0.0; 12];
+        for (a, &v) in hinges[i].vertices.iter().enumerate() {
+            s[3 * a..3 * a + 3].copy_from_slice(x[v].as_slice());
+        }
+        reference_hinge_hessian(&s, |t| psi(i, t)).2
+    };
+    #[cfg(feature = "rayon")]
+    let locals: Vec<[[Dd; N]; N]> = {
+        use rayon::prelude::*;
+        (0..hinges.len()).into_par_iter().map(local).collect()
+    };
+    #[cfg(not(feature = "rayon"))]
+    let locals: Vec<[[Dd; N]; N]> = (0..hinges.len()).map(local).collect();
+    let pattern = model.pattern();
+    let mut values = vec![Dd::default(); pattern.nnz()];
+    for (h, local) in hinges.iter().zip(&locals) {
+        for a in 0..4 {
+            for b in 0..4 {
+                let (va, vb) = (h.vertices[a], h.vertices[b]);
+                // The stored lower block is the one whose row comes later in the storage order.
+                if pattern.storage_of(va) < pattern.storage_of(vb) {
+                    continue;
+                }
+                let Some(slot) = pattern.find(va, vb) else {
+                    continue;
+                };
+                let off = pattern.blocks()[slot].offset;
+                for c in 0..3 {
+                    let rows = if va == vb { c..3 } else { 0..3 };
+                    for r in rows {
+                        let o = off[c] as usize + if va == vb { r - c } else { r };
+                        values[o] = values[o] + local[3 * a + r][3 * b + c];
+                    }
+                }
+            }
+        }
+    }
+    values
+}
+
+/// [`ulps_weighted`] of a symmetric matrix stored as `pattern`'s lower triangle: off-diagonal entries count
+/// twice (the normwise error of the full matrix).
+pub fn hessian_ulps(
+    pattern: &crate::pattern::SymmetricPattern,
+    values: &[f64],
+    reference: &[Dd],
+) -> f64 {
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    let mut weight = vec![2.0; pattern.nnz()];
+    for c in 0..pattern.dim() {
+        for k in cp[c]..cp[c + 1] {
+            if ri[k] == c {
+                weight[k] = 1.0;
+            }
+        }
+    }
+    ulps_weighted(values, reference, |k| weight[k])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -221,17 +221,8 @@ fn implicit_euler_never_increases_the_energy_of_an_undamped_system() {
         .collect();
     x[0] = rest.positions()[0];
     let mut v = vec![Vector3::zeros(); n];
-    let total = |sys: &mut System, x: &[Vector3<f64>], v: &[Vector3<f64>]| {
-        let e = sys
-            .evaluate(x, Request::VALUE, Parallelism::Sequential)
-            .unwrap()
-            .energy;
-        e + v
-            .iter()
-            .zip(&masses)
-            .map(|(w, m)| 0.5 * m * w.norm_squared())
-            .sum::<f64>()
-    };
+    let total =
+        |sys: &mut System, x: &[Vector3<f64>], v: &[Vector3<f64>]| total_energy(sys, &masses, x, v);
     let mut last = total(&mut sys, &x, &v);
     for step in 0..30 {
         let stats = stepper.step(&mut sys, &mut x, &mut v).unwrap();

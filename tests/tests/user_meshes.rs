@@ -8,7 +8,7 @@ use hinge_core::bending::{BendingModel, Evaluation, Method, Parallelism, Request
 use hinge_core::export::full_csr;
 use hinge_core::grid::{reference_jitter, unit_grid};
 use hinge_core::pattern::SymmetricPattern;
-use hinge_core::precise::{Dd, Jet, reference_hinge_hessian, ulps_weighted};
+use hinge_core::precise::{Dd, Jet, reference_hessian};
 use hinge_core::psi::{DiscreteShells, HingePsi, TanBending};
 use hinge_core::shapes::{
     bend, icosphere, irregular_sheet, random_permutation, renumber, renumber_positions,
@@ -49,51 +49,16 @@ fn rotate_faces(mesh: &TriMesh, rot: impl Fn(usize) -> usize) -> TriMesh {
 /// Σ k·a·(θ − θ̄)² assembled in double-double into `model`'s pattern.
 fn dd_reference(model: &BendingModel<DiscreteShells>, x: &[Vector3<f64>]) -> Vec<Dd> {
     let k = model.psi().k;
-    let pattern = model.pattern();
-    let mut values = vec![Dd::default(); pattern.nnz()];
-    for (h, r) in model.topology().hinges().iter().zip(model.rest_hinges()) {
-        let mut s = [0.0; 12];
-        for (a, &v) in h.vertices.iter().enumerate() {
-            s[3 * a..3 * a + 3].copy_from_slice(x[v].as_slice());
-        }
-        let ka = Dd::from(k) * Dd::from(r.a);
-        let (_, _, local) = reference_hinge_hessian(&s, |t| {
-            let d = t - Jet::constant(Dd::from(r.theta_bar));
-            (d * d) * ka
-        });
-        for a in 0..4 {
-            for b in 0..4 {
-                let (va, vb) = (h.vertices[a], h.vertices[b]);
-                if pattern.storage_of(va) < pattern.storage_of(vb) {
-                    continue;
-                }
-                let Some(slot) = pattern.find(va, vb) else {
-                    continue;
-                };
-                let off = pattern.blocks()[slot].offset;
-                for c in 0..3 {
-                    let rows = if va == vb { c..3 } else { 0..3 };
-                    for rr in rows {
-                        let o = off[c] as usize + if va == vb { rr - c } else { rr };
-                        values[o] = values[o] + local[3 * a + rr][3 * b + c];
-                    }
-                }
-            }
-        }
-    }
-    values
+    let rest = model.rest_hinges();
+    reference_hessian(model, x, |h, t| {
+        let d = t - Jet::constant(Dd::from(rest[h].theta_bar));
+        (d * d) * (Dd::from(k) * Dd::from(rest[h].a))
+    })
 }
 
 /// Normwise error of the full symmetric matrix in ulps (off-diagonal stored entries count twice).
 fn hessian_ulps(p: &SymmetricPattern, values: &[f64], reference: &[Dd]) -> f64 {
-    let (cp, ri) = (p.col_ptr(), p.row_idx());
-    let mut diag = vec![false; p.nnz()];
-    for c in 0..p.dim() {
-        for k in cp[c]..cp[c + 1] {
-            diag[k] = ri[k] == c;
-        }
-    }
-    ulps_weighted(values, reference, |k| if diag[k] { 1.0 } else { 2.0 })
+    hinge_core::precise::hessian_ulps(p, values, reference)
 }
 
 /// The meshes of the double-double comparison, quantized (rest and deformed).
