@@ -16,11 +16,9 @@ use super::{BendingModel, Parallelism, Request};
 /// that task overhead is negligible).
 pub(super) const HINGE_CHUNK: usize = 4096;
 
-/// One hinge's pass-1 record.
+/// One hinge's pass-1 record for pass 2 (ψ goes into the chunk sums, ψ′ into the compact `dpsi` array).
 #[derive(Debug, Clone, Copy, Default)]
 pub(super) struct HingeState {
-    pub psi: f64,
-    pub dpsi: f64,
     pub d2psi: f64,
     pub grad: [Vector3<f64>; 4],
 }
@@ -80,11 +78,10 @@ impl<P: HingePsi> BendingModel<P> {
             match states {
                 Some((states, dpsi)) => {
                     for (k, (s, d)) in states.iter_mut().zip(dpsi.iter_mut()).enumerate() {
-                        match self.hinge_pass(base + k, xs, need, Some(s)) {
+                        match self.hinge_pass(base + k, xs, need, Some((s, d))) {
                             Ok(psi) => acc += psi,
                             Err(e) => keep_first(&mut first, base + k, e),
                         }
-                        *d = s.dpsi;
                     }
                 }
                 None => {
@@ -135,14 +132,14 @@ impl<P: HingePsi> BendingModel<P> {
         }
     }
 
-    /// One hinge: writes its record into `s` (unless energy-only, where `s` is `None`) and returns ψ.
+    /// One hinge: writes its record and ψ′ into `s` (unless energy-only, where `s` is `None`) and returns ψ.
     #[inline]
     fn hinge_pass(
         &self,
         slot: usize,
         xs: &[Vector3<f64>],
         need: Need,
-        s: Option<&mut HingeState>,
+        s: Option<(&mut HingeState, &mut f64)>,
     ) -> Result<f64, EvalError> {
         let i = self.layout.state_order[slot] as usize;
         let [a, b, c, d] = self.layout.state_vertices[slot];
@@ -171,16 +168,16 @@ impl<P: HingePsi> BendingModel<P> {
             Need::Gradient => {
                 let (theta, grad) = theta_and_gradient(&st).map_err(err)?;
                 let [psi, dpsi] = self.psi.eval_d1(p, theta);
-                if let Some(s) = s {
-                    (s.psi, s.dpsi, s.d2psi, s.grad) = (psi, dpsi, 0.0, grad);
+                if let Some((s, d)) = s {
+                    (s.d2psi, s.grad, *d) = (0.0, grad, dpsi);
                 }
                 (theta, psi, psi.is_finite() && dpsi.is_finite())
             }
             Need::All => {
                 let (theta, grad) = theta_and_gradient(&st).map_err(err)?;
                 let [psi, dpsi, d2psi] = self.psi.eval(p, theta);
-                if let Some(s) = s {
-                    (s.psi, s.dpsi, s.d2psi, s.grad) = (psi, dpsi, d2psi, grad);
+                if let Some((s, d)) = s {
+                    (s.d2psi, s.grad, *d) = (d2psi, grad, dpsi);
                 }
                 let ok = psi.is_finite() && dpsi.is_finite() && d2psi.is_finite();
                 (theta, psi, ok)

@@ -706,7 +706,7 @@ pub struct Scratch {
     /// ψ summed per chunk of the hinge pass.
     sums: Vec<f64>,
     /// ψ′ per state slot, compact: the triangle pass reads it for all three edges of every triangle, and
-    /// the 120-byte states would cost a cache line each.
+    /// the 104-byte records would cost a cache line each.
     dpsi: Vec<f64>,
     /// Positions in storage order.
     positions: Vec<Vector3<f64>>,

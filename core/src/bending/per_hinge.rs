@@ -51,7 +51,7 @@ impl<P: HingePsi> Ctx<'_, P> {
         }
         if self.request.gradient {
             for a in 0..4 {
-                own.add_grad(hv[a], &(s.grad[a] * s.dpsi));
+                own.add_grad(hv[a], &(s.grad[a] * self.dpsi[slot]));
             }
         }
         if !self.request.hessian {
@@ -71,7 +71,7 @@ impl<P: HingePsi> Ctx<'_, P> {
         let g = f.gradient();
         let (dpsi, d2psi) = match m.hessian_mode {
             HessianMode::GaussNewton => (0.0, s.d2psi.max(0.0)),
-            _ => (s.dpsi, s.d2psi),
+            _ => (self.dpsi[slot], s.d2psi),
         };
         let hb = if dpsi != 0.0 {
             hessian_blocks(&f)

@@ -36,9 +36,10 @@ impl<P: HingePsi> Ctx<'_, P> {
         if self.request.gradient {
             for k in assigned.clone() {
                 let s = &self.states[hid[k] as usize];
+                let dpsi = self.dpsi[hid[k] as usize];
                 let hv = l.state_vertices[hid[k] as usize];
                 for a in 0..4 {
-                    own.add_grad(hv[a] as usize, &(s.grad[a] * s.dpsi));
+                    own.add_grad(hv[a] as usize, &(s.grad[a] * dpsi));
                 }
             }
         }
