@@ -77,6 +77,7 @@ fn time_method(
         value: false,
         gradient: true,
         hessian: true,
+        definite: false,
     };
     timed(|| {
         model

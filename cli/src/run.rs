@@ -29,7 +29,9 @@ use hinge_solver::linear::{
 };
 
 use crate::scene::Scene;
-use hinge_solver::newton::{FrameStats, ImplicitEuler, Newton, NewtonParams, SubstepPolicy};
+use hinge_solver::newton::{
+    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, SubstepPolicy,
+};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -87,6 +89,8 @@ pub struct RunSummary {
     pub final_gradient_norm: f64,
     /// Numeric factorizations attempted (failed shifted ones included), over every substep.
     pub factorizations: usize,
+    /// Newton iterations that stepped with the definite Hessian (project on demand).
+    pub definite_iterations: usize,
     /// Accepted substeps (one per frame when no step failed).
     pub substeps: usize,
     /// The largest final ‖∇F‖ over all steps.
@@ -186,6 +190,10 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         gradient_tolerance: scene.solver.gradient_tolerance,
         step_tolerance: 1e-9,
         max_iterations: scene.solver.max_iterations,
+        globalization: Globalization::from_name(&scene.solver.globalization).unwrap_or_default(),
+        relative_gradient_tolerance: scene.solver.relative_gradient_tolerance.unwrap_or(0.0),
+        relative_step_tolerance: scene.solver.relative_step_tolerance.unwrap_or(0.0),
+        length_scale: mean_edge_length(rest),
         ..NewtonParams::default()
     };
     let solver: Box<dyn LinearSolver> = match scene.solver.backend.as_str() {
@@ -203,6 +211,20 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         params,
         spheres,
     })
+}
+
+/// The mean length of the rest mesh's edges (each triangle's three, shared edges counted twice): the length
+/// scale of the relative step test.
+fn mean_edge_length(rest: &TriMesh) -> f64 {
+    let x = rest.positions();
+    let (mut sum, mut count) = (0.0, 0usize);
+    for t in rest.triangles() {
+        for k in 0..3 {
+            sum += (x[t[(k + 1) % 3]] - x[t[k]]).norm();
+            count += 1;
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
 }
 
 fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
@@ -270,6 +292,7 @@ pub fn equilibrium(
         max_speed: 0.0,
         final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         factorizations: stats.factorizations,
+        definite_iterations: stats.definite_iterations,
         substeps: 0,
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
@@ -343,6 +366,7 @@ pub fn simulate(
         max_speed: 0.0,
         final_gradient_norm: f64::NAN,
         factorizations: 0,
+        definite_iterations: 0,
         substeps: 0,
         max_final_gradient_norm: 0.0,
         smallest_substep_fraction: 1.0,
@@ -366,6 +390,7 @@ pub fn simulate(
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
         summary.line_search_steps += stats.line_search_steps;
         summary.factorizations += stats.factorizations;
+        summary.definite_iterations += stats.definite_iterations;
         summary.substeps += fs.substeps;
         summary.max_final_gradient_norm = summary
             .max_final_gradient_norm
@@ -461,6 +486,7 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         "newton_iterations": summary.newton_iterations,
         "line_search_steps": summary.line_search_steps,
         "factorizations": summary.factorizations,
+        "definite_iterations": summary.definite_iterations,
         "substeps": summary.substeps,
         "smallest_substep_fraction": summary.smallest_substep_fraction,
         "max_final_gradient_norm": summary.max_final_gradient_norm,

@@ -190,6 +190,22 @@ pub struct SolverSpec {
     /// (0 to 30; default 5, i.e. dt/32) before the run stops.
     #[serde(default = "default_halvings")]
     pub max_substep_halvings: u32,
+    /// `shifted-exact` (default: the exact Hessian with a diagonal shift raised until it factors) or
+    /// `project-on-demand` (each energy's definite Hessian after a failed factorization; see
+    /// `hinge_solver::newton`).
+    #[serde(default = "default_globalization")]
+    pub globalization: String,
+    /// Also stop when ‖∇F‖ ≤ this × ‖∇F‖ at the step's start (unit-free; unset: off).
+    #[serde(default)]
+    pub relative_gradient_tolerance: Option<f64>,
+    /// Also stop when no vertex moves by more than this × the mean rest edge length in a step (unit-free;
+    /// unset: off).
+    #[serde(default)]
+    pub relative_step_tolerance: Option<f64>,
+}
+
+fn default_globalization() -> String {
+    "shifted-exact".into()
 }
 
 fn default_halvings() -> u32 {
@@ -213,6 +229,9 @@ impl Default for SolverSpec {
             max_iterations: default_iterations(),
             gradient_tolerance: default_tolerance(),
             max_substep_halvings: default_halvings(),
+            globalization: default_globalization(),
+            relative_gradient_tolerance: None,
+            relative_step_tolerance: None,
         }
     }
 }
@@ -293,6 +312,26 @@ impl Scene {
                 "bending.damping: must be non-negative, got {}",
                 self.bending.damping
             ));
+        }
+        if hinge_solver::newton::Globalization::from_name(&self.solver.globalization).is_none() {
+            return Err(format!(
+                "solver.globalization: unknown `{}` (project-on-demand, shifted-exact)",
+                self.solver.globalization
+            ));
+        }
+        for (key, v) in [
+            (
+                "solver.relative_gradient_tolerance",
+                self.solver.relative_gradient_tolerance,
+            ),
+            (
+                "solver.relative_step_tolerance",
+                self.solver.relative_step_tolerance,
+            ),
+        ] {
+            if let Some(v) = v {
+                positive(key, v)?;
+            }
         }
         if !["eq11", "plate"].contains(&self.bending.calibration.as_str()) {
             return Err(format!(

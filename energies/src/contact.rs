@@ -6,6 +6,9 @@
 //! - Plane through `p` with unit normal `n`: `d = n · (x − p)`, `∇d = n`, `Hess d = 0`.
 //! - Sphere of centre `c`, radius `r`: `d = |x − c| − r`, `∇d = u = (x − c)/|x − c|`,
 //!   `Hess d = (I − u uᵀ)/|x − c|` (so the exact Hessian has a negative part inside the sphere).
+//!
+//! A [`Request::definite`](hinge_core::bending::Request::definite) evaluation drops the `− κ s Hess d` term
+//! (positive semi-definite: `κ ∇d ∇dᵀ`); for the plane that is the exact Hessian.
 
 use std::sync::Arc;
 
@@ -166,7 +169,7 @@ impl Energy for Contact {
             }
             if request.hessian && !self.diag.is_empty() {
                 let mut h = grad_d * grad_d.transpose() * kappa;
-                if let Some(hd) = hess_d {
+                if let Some(hd) = hess_d.filter(|_| !request.definite) {
                     h -= hd * (kappa * s);
                 }
                 acc.add_block(self.diag[i], i, i, &h);

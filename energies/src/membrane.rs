@@ -13,7 +13,12 @@
 //! ∇_v E = h Ā F S b_v
 //! ∂²E/∂x_v,k ∂x_w,l = h Ā [ μ((f_k·f_l)(b_v·b_w) + (f_k·b_w)(f_l·b_v)) + λ (f_k·b_v)(f_l·b_w) + δ_kl b_vᵀ S b_w ]
 //! ```
-//! (the exact Hessian; indefinite under compression).
+//! (the exact Hessian; indefinite under compression). The last term is the geometric stiffness; the rest is
+//! `h Ā Jᵀ C J` with `J = ∂E/∂x` and the positive semi-definite plane-stress tensor `C`. A
+//! [`Request::definite`](hinge_core::bending::Request::definite) evaluation replaces `S` in the geometric
+//! stiffness by its positive part `S⁺` (eigenvalues of the 2×2 `S` clamped at zero, in closed form), which
+//! makes each triangle's 9×9 Hessian positive semi-definite: cheap, not the nearest PSD matrix, and exact
+//! for triangles in tension.
 
 use std::sync::Arc;
 
@@ -163,6 +168,11 @@ impl Energy for StvkMembrane {
             }
             if request.hessian && !self.slots.is_empty() {
                 let rows: [Vector2<f64>; 3] = [0, 1, 2].map(|k| f.row(k).transpose());
+                let s = if request.definite {
+                    positive_part(&s)
+                } else {
+                    s
+                };
                 let block = |v: usize, wv: usize| {
                     let (bv, bw) = (b[v], b[wv]);
                     let sb = bv.dot(&(s * bw));
@@ -185,5 +195,51 @@ impl Energy for StvkMembrane {
             }
         }
         Ok(if request.value { energy } else { 0.0 })
+    }
+}
+
+/// The positive part of a symmetric 2×2 matrix (eigenvalues clamped at zero), in closed form.
+fn positive_part(s: &Matrix2<f64>) -> Matrix2<f64> {
+    let (a, b, d) = (s[(0, 0)], 0.5 * (s[(0, 1)] + s[(1, 0)]), s[(1, 1)]);
+    let mean = 0.5 * (a + d);
+    let radius = (0.5 * (a - d)).hypot(b);
+    let (l1, l2) = (mean + radius, mean - radius);
+    if l2 >= 0.0 {
+        return Matrix2::new(a, b, b, d);
+    }
+    if l1 <= 0.0 {
+        return Matrix2::zeros();
+    }
+    // One positive eigenvalue l1 with unit eigenvector u: S⁺ = l1 u uᵀ, and (S − l2 I) = (l1 − l2) u uᵀ.
+    let m = Matrix2::new(a - l2, b, b, d - l2);
+    m * (l1 / (l1 - l2))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::positive_part;
+    use hinge_core::nalgebra::Matrix2;
+
+    #[test]
+    fn positive_part_matches_the_eigendecomposition() {
+        for &(a, b, d) in &[
+            (1.0, 0.3, -2.0),
+            (-1.0, 0.0, -3.0),
+            (2.0, 0.5, 1.0),
+            (0.0, 1.0, 0.0),
+            (-1e-3, 2e-3, 5e-4),
+            (3.0, 0.0, -1.0),
+        ] {
+            let s = Matrix2::new(a, b, b, d);
+            let e = s.symmetric_eigen();
+            let q = e.eigenvectors;
+            let want =
+                q * Matrix2::from_diagonal(&e.eigenvalues.map(|l: f64| l.max(0.0))) * q.transpose();
+            let got = positive_part(&s);
+            assert!(
+                (got - want).norm() <= 1e-14 * s.norm(),
+                "{s} → {got} vs {want}"
+            );
+        }
     }
 }

@@ -4,7 +4,8 @@
 //! Per edge with `d = x_i − x_j`, `d̂ = d / l`: `∇_i E = k (l − L) d̂ = −∇_j E`, and
 //! `H_ii = H_jj = −H_ij = k [d̂ d̂ᵀ + (1 − L/l)(I − d̂ d̂ᵀ)]`. Under compression (`l < L`) the second term is
 //! negative and can make the Hessian indefinite; [`MassSpring::drop_compressive_term`] clamps it to zero
-//! (lecture P23), trading the exact Hessian for a positive semi-definite one.
+//! (lecture P23), trading the exact Hessian for a positive semi-definite one; a
+//! [`Request::definite`](hinge_core::bending::Request::definite) evaluation clamps it too.
 
 use std::sync::Arc;
 
@@ -124,7 +125,7 @@ impl Energy for MassSpring {
             if request.hessian && !self.slots.is_empty() {
                 let nn = n * n.transpose();
                 let mut t = 1.0 - big_l / l;
-                if self.drop_compressive && t < 0.0 {
+                if (self.drop_compressive || request.definite) && t < 0.0 {
                     t = 0.0;
                 }
                 let h = (nn + (Matrix3::identity() - nn) * t) * self.k;

@@ -310,7 +310,7 @@ fn hessian_modes_gauss_newton_and_projection_are_psd() {
         .collect();
     let build = |mode: HessianMode, method: Method| {
         let mut m = BendingModel::new(&rest, TanBending { k: 1.0 }).unwrap();
-        m.set_hessian_mode(mode);
+        m.set_hessian_mode(mode).unwrap();
         System::new(
             n,
             vec![Box::new(HingeTerm::new("tan", m, method)) as Box<dyn Energy>],
@@ -589,4 +589,258 @@ fn a_failed_step_does_not_advance_the_damping_state() {
     stepper.newton_mut().params.max_iterations = 100;
     stepper.step(&mut sys, &mut x, &mut v).unwrap();
     assert_ne!(at(&mut sys).to_bits(), before.to_bits());
+}
+
+/// ψ = k (θ − θ̄): ψ″ ≡ 0, so the exact Hessian has no wing–wing (x2–x3) blocks.
+#[derive(hinge_core::HingeEnergy)]
+#[psi(k * (theta - theta_bar))]
+pub struct LinearInTheta {
+    /// Stiffness.
+    pub k: f64,
+}
+
+#[test]
+fn projection_of_a_psi_second_derivative_free_energy_keeps_the_wing_blocks() {
+    use hinge_core::autodiff::hinge_angle_autodiff;
+    use hinge_core::bending::HessianMode;
+    use hinge_core::export::dense;
+    use hinge_core::nalgebra::{DMatrix, SMatrix};
+    const { assert!(<LinearInTheta as hinge_core::psi::HingePsi>::D2_IS_ZERO) };
+    // A closed mesh, randomly renumbered, and an irregular open sheet, both bent.
+    let sphere = hinge_core::shapes::icosphere(1, 1.0).unwrap();
+    let perm = hinge_core::shapes::random_permutation(sphere.n_vertices(), 5);
+    let sphere = hinge_core::shapes::renumber(&sphere, &perm).unwrap();
+    let sheet = hinge_core::shapes::irregular_sheet(7, 6, 3).unwrap();
+    for rest in [sphere, sheet] {
+        let n = rest.n_vertices();
+        let mut rng = SplitMix64(11);
+        let x: Vec<_> = hinge_core::shapes::bend(rest.positions())
+            .iter()
+            .map(|p| {
+                p + Vector3::new(
+                    0.05 * rng.symmetric(),
+                    0.05 * rng.symmetric(),
+                    0.1 * rng.symmetric(),
+                )
+            })
+            .collect();
+        let k = 0.7;
+        let mut m = BendingModel::new(&rest, LinearInTheta { k }).unwrap();
+        let wings = |m: &BendingModel<LinearInTheta>| {
+            m.topology()
+                .hinges()
+                .iter()
+                .filter(|h| m.pattern().find(h.vertices[2], h.vertices[3]).is_some())
+                .count()
+        };
+        let exact_wings = wings(&m);
+        m.set_hessian_mode(HessianMode::ProjectPerHinge).unwrap();
+        assert_eq!(wings(&m), m.topology().hinges().len());
+        for method in [Method::Refactored, Method::PerHinge, Method::Autodiff] {
+            let e = m
+                .evaluate(&x, Request::ALL, method, Parallelism::Sequential)
+                .unwrap();
+            let got = dense(m.pattern(), &e.hessian).unwrap();
+            // Independent: per hinge, ψ′ Hess θ from num-dual, projected by faer's eigendecomposition.
+            let mut want = DMatrix::<f64>::zeros(3 * n, 3 * n);
+            for (h, rest_h) in m.topology().hinges().iter().zip(m.rest_hinges()) {
+                let st = h.vertices.map(|v| x[v]);
+                let d = hinge_angle_autodiff(&st).unwrap();
+                let _ = rest_h;
+                let local: SMatrix<f64, 12, 12> = d.hessian * k;
+                let fm = faer::Mat::<f64>::from_fn(12, 12, |i, j| local[(i, j)]);
+                let eig = fm.self_adjoint_eigen(faer::Side::Lower).unwrap();
+                let (sv, u) = (eig.S(), eig.U());
+                for a in 0..4 {
+                    for b in 0..4 {
+                        for i in 0..3 {
+                            for j in 0..3 {
+                                let (r, c) = (3 * a + i, 3 * b + j);
+                                let v: f64 = (0..12)
+                                    .map(|q| sv[q].max(0.0) * u[(r, q)] * u[(c, q)])
+                                    .sum();
+                                want[(3 * h.vertices[a] + i, 3 * h.vertices[b] + j)] += v;
+                            }
+                        }
+                    }
+                }
+            }
+            let rel = (&got - &want).norm() / want.norm();
+            assert!(
+                rel <= 1e-10,
+                "{method:?}: projected Hessian off by {rel:e} (exact pattern had {exact_wings} wing pairs)"
+            );
+        }
+    }
+}
+
+#[test]
+fn definite_requests_give_psd_hessians_with_exact_energy_and_gradient() {
+    use hinge_energies::contact::{Contact, Obstacle};
+    use hinge_energies::membrane::StvkMembrane;
+    // An irregular sheet, renumbered, compressed in-plane and bent, partly inside a sphere.
+    let rest = hinge_core::shapes::irregular_sheet(6, 5, 9).unwrap();
+    let perm = hinge_core::shapes::random_permutation(rest.n_vertices(), 2);
+    let rest = hinge_core::shapes::renumber(&rest, &perm).unwrap();
+    let n = rest.n_vertices();
+    let mut rng = SplitMix64(21);
+    let x: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            Vector3::new(0.8 * p.x, 0.85 * p.y, 0.2 * (3.0 * p.x).sin())
+                + Vector3::new(
+                    0.01 * rng.symmetric(),
+                    0.01 * rng.symmetric(),
+                    0.02 * rng.symmetric(),
+                )
+        })
+        .collect();
+    let build = || {
+        let mut m = BendingModel::new(&rest, DiscreteShells { k: 0.3 }).unwrap();
+        m.set_hessian_mode(hinge_core::bending::HessianMode::Exact)
+            .unwrap();
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(HingeTerm::new("bending", m, Method::Refactored)),
+            Box::new(StvkMembrane::new(&rest, 50.0, 0.3, 0.01).unwrap()),
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Sphere {
+                        center: Vector3::new(0.4, 0.4, -0.3),
+                        radius: 0.45,
+                    },
+                    100.0,
+                    0.05,
+                )
+                .unwrap(),
+            ),
+            Box::new(MassSpring::new(&rest, 5.0).unwrap()),
+        ];
+        System::new(n, terms).unwrap()
+    };
+    let mut sys = build();
+    let exact = sys
+        .evaluate(&x, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    let definite = sys
+        .evaluate(
+            &x,
+            Request::ALL.with_definite(true),
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    assert_eq!(exact.energy, definite.energy);
+    assert_eq!(exact.gradient, definite.gradient);
+    let (lo, hi) = min_eigenvalue(&sys, &exact.hessian);
+    assert!(
+        lo < -1e-6 * hi,
+        "the exact Hessian of this state is indefinite ({lo:e})"
+    );
+    let (lo, hi) = min_eigenvalue(&sys, &definite.hessian);
+    assert!(
+        lo > -1e-12 * hi,
+        "definite Hessian has eigenvalue {lo:e} (max {hi:e})"
+    );
+    // At rest (no compression, no bending, outside the obstacle) the definite Hessian is the exact one.
+    let far: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 5.0))
+        .collect();
+    let a = sys
+        .evaluate(&far, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    let b = sys
+        .evaluate(
+            &far,
+            Request::ALL.with_definite(true),
+            Parallelism::Sequential,
+        )
+        .unwrap();
+    assert!(rel_error(&a.hessian, &b.hessian) <= 1e-15);
+}
+
+#[test]
+fn both_globalizations_reach_the_same_equilibrium() {
+    use hinge_energies::membrane::StvkMembrane;
+    use hinge_solver::newton::Globalization;
+    // A sheet clamped along one side, sagging under gravity from a compressed start: the exact Hessian is
+    // indefinite in the first iterations.
+    let rest = hinge_core::shapes::irregular_sheet(7, 7, 4).unwrap();
+    let n = rest.n_vertices();
+    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].x <= 1e-12).collect();
+    assert!(!pinned.is_empty());
+    let start: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(0.9 * p.x, p.y, 0.05 * (4.0 * p.y).sin() * p.x))
+        .collect();
+    let mut results = Vec::new();
+    for g in [Globalization::ShiftedExact, Globalization::ProjectOnDemand] {
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(HingeTerm::new(
+                "bending",
+                BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
+                Method::Refactored,
+            )),
+            Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
+            Box::new(
+                Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
+            ),
+        ];
+        let mut sys = System::new(n, terms).unwrap();
+        let params = NewtonParams {
+            gradient_tolerance: 1e-9,
+            max_iterations: 500,
+            globalization: g,
+            ..NewtonParams::default()
+        };
+        let pins = Pins::new(n, pinned.clone()).unwrap();
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let mut x = start.clone();
+        let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+        println!(
+            "{g:?}: {} iterations, {} factorizations, {} definite",
+            stats.iterations, stats.factorizations, stats.definite_iterations
+        );
+        assert!(stats.gradient_norms.last().unwrap() <= &1e-9);
+        if g == Globalization::ProjectOnDemand {
+            assert!(
+                stats.definite_iterations > 0,
+                "the exact Hessian never failed: no test"
+            );
+        } else {
+            assert_eq!(stats.definite_iterations, 0);
+        }
+        results.push(x);
+    }
+    let d = results[0]
+        .iter()
+        .zip(&results[1])
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(d <= 1e-6, "different equilibria: {d:e}");
+}
+
+#[test]
+fn unit_free_stopping_tests() {
+    let p = NewtonParams {
+        gradient_tolerance: 1e-12,
+        step_tolerance: 0.0,
+        relative_gradient_tolerance: 1e-6,
+        relative_step_tolerance: 1e-8,
+        length_scale: 0.01,
+        ..NewtonParams::default()
+    };
+    // Relative to the start's gradient, whatever the units.
+    assert!(p.converged(0.9e-6 * 3e4, 3e4, None));
+    assert!(!p.converged(1.1e-6 * 3e4, 3e4, None));
+    // Largest vertex step against the length scale.
+    assert!(p.converged(1.0, 1.0, Some((1.0, 0.9e-10))));
+    assert!(!p.converged(1.0, 1.0, Some((1.0, 1.1e-10))));
+    // Off by default: only the absolute tests.
+    let d = NewtonParams::default();
+    assert!(!d.converged(1e-7, 1.0, Some((1.0, 0.0))));
+    assert!(d.converged(1e-9, 1.0, None));
 }

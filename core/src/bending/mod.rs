@@ -132,6 +132,12 @@ pub struct Request {
     pub gradient: bool,
     /// The Hessian values (in the pattern of [`BendingModel::pattern`]).
     pub hessian: bool,
+    /// Ask for a positive semi-definite Hessian instead of the exact one, from each energy's own cheap
+    /// construction (documented per energy; for a hinge model in [`HessianMode::Exact`] it is
+    /// [`HessianMode::GaussNewton`], other modes are already definite and stay as chosen). Newton's
+    /// project-on-demand globalization asks for it only in iterations whose exact Hessian failed to factor.
+    /// The energy and gradient are exact either way.
+    pub definite: bool,
 }
 
 impl Request {
@@ -140,19 +146,27 @@ impl Request {
         value: true,
         gradient: true,
         hessian: true,
+        definite: false,
     };
     /// Energy only.
     pub const VALUE: Request = Request {
         value: true,
         gradient: false,
         hessian: false,
+        definite: false,
     };
     /// Energy and gradient.
     pub const GRADIENT: Request = Request {
         value: true,
         gradient: true,
         hessian: false,
+        definite: false,
     };
+
+    /// The same request with [`Request::definite`] set to `definite`.
+    pub const fn with_definite(self, definite: bool) -> Request {
+        Request { definite, ..self }
+    }
 }
 
 /// Where the work runs. With [`Parallelism::Rayon`] the passes run on the current rayon pool: call
@@ -257,9 +271,16 @@ impl<P: HingePsi> BendingModel<P> {
     }
 
     /// The vertex pairs this energy couples (the caller's numbering): the three pairs of every triangle with
-    /// an interior edge, and x0–x3 of every hinge unless ψ″ ≡ 0.
+    /// an interior edge, and the two wing vertices (x2–x3) of every hinge unless ψ″ ≡ 0 — or when the model
+    /// projects per hinge ([`HessianMode::ProjectPerHinge`]): the projected 12×12 matrix couples the wings
+    /// even where the exact one does not.
     pub fn couplings(&self) -> Vec<(usize, usize)> {
-        setup::couplings(&self.topology, P::D2_IS_ZERO)
+        setup::couplings(&self.topology, !self.couples_wings(self.hessian_mode))
+    }
+
+    /// Whether the Hessian in `mode` has wing–wing (x2–x3) blocks.
+    fn couples_wings(&self, mode: HessianMode) -> bool {
+        !P::D2_IS_ZERO || mode == HessianMode::ProjectPerHinge
     }
 
     /// Binds the model to a (possibly larger, shared) pattern that holds every coupling of
@@ -294,9 +315,26 @@ impl<P: HingePsi> BendingModel<P> {
         Ok(())
     }
 
-    /// Chooses the Hessian the model assembles (see [`HessianMode`]).
-    pub fn set_hessian_mode(&mut self, mode: HessianMode) {
+    /// Chooses the Hessian the model assembles (see [`HessianMode`]). For an energy with ψ″ ≡ 0, switching
+    /// to [`HessianMode::ProjectPerHinge`] gives the model's own pattern the wing–wing couplings the
+    /// projection writes (rebuilding the pattern, its storage order and the slots); a model bound into a
+    /// [`crate::energy::System`] must have its mode chosen before the system is built.
+    ///
+    /// # Errors
+    /// [`EvalError::Pattern`] when the rebuilt pattern does not fit 32-bit value slots. On error nothing
+    /// changes.
+    pub fn set_hessian_mode(&mut self, mode: HessianMode) -> Result<(), EvalError> {
+        if self.couples_wings(mode) && !self.couples_wings(self.hessian_mode) {
+            let pattern = Arc::new(SymmetricPattern::new(
+                self.n_vertices(),
+                setup::couplings(&self.topology, false),
+            )?);
+            self.layout = setup::Layout::new(&self.topology, &pattern);
+            self.slot_params = self.layout.in_slot_order(&self.params);
+            self.pattern = pattern;
+        }
         self.hessian_mode = mode;
+        Ok(())
     }
 
     /// The Hessian mode.
@@ -540,6 +578,16 @@ impl<P: HingePsi> BendingModel<P> {
         }
     }
 
+    /// The Hessian mode an evaluation with `request` uses: [`HessianMode::GaussNewton`] for a
+    /// [`Request::definite`] request on a model in [`HessianMode::Exact`], the model's own mode otherwise.
+    fn effective_mode(&self, request: Request) -> HessianMode {
+        if request.definite && self.hessian_mode == HessianMode::Exact {
+            HessianMode::GaussNewton
+        } else {
+            self.hessian_mode
+        }
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn evaluate_impl(
         &self,
@@ -603,6 +651,7 @@ impl<P: HingePsi> BendingModel<P> {
             dpsi: &scratch.dpsi,
             request,
             method,
+            mode: self.effective_mode(request),
             local_only: false,
             accumulate,
         };
@@ -685,6 +734,7 @@ impl<P: HingePsi> BendingModel<P> {
             states: &scratch.hinges,
             request: Request::ALL,
             method,
+            mode: self.hessian_mode,
             local_only: true,
             accumulate: false,
         };

@@ -24,7 +24,7 @@ impl<P: HingePsi> Ctx<'_, P> {
         let hv = l.state_vertices[slot].map(|v| v as usize);
         let st: Stencil = hv.map(|v| self.x[v]);
         let slots = &l.hinge_slots[slot];
-        let project = self.request.hessian && m.hessian_mode == HessianMode::ProjectPerHinge;
+        let project = self.request.hessian && self.mode == HessianMode::ProjectPerHinge;
         if self.method == Method::Autodiff {
             let p = &m.slot_params[slot];
             let coords = SVector::<f64, 12>::from(flatten(&st));
@@ -69,7 +69,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             (hid as u32, err)
         })?;
         let g = f.gradient();
-        let (dpsi, d2psi) = match m.hessian_mode {
+        let (dpsi, d2psi) = match self.mode {
             HessianMode::GaussNewton => (0.0, s.d2psi.max(0.0)),
             _ => (self.dpsi[slot], s.d2psi),
         };

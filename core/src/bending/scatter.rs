@@ -144,6 +144,8 @@ pub(super) struct Ctx<'a, P: HingePsi> {
     pub dpsi: &'a [f64],
     pub request: Request,
     pub method: Method,
+    /// The Hessian mode of this evaluation (the model's, or Gauss–Newton for a definite request).
+    pub mode: HessianMode,
     pub local_only: bool,
     /// Add to the Hessian output instead of zeroing it first.
     pub accumulate: bool,
@@ -248,7 +250,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             checksum: 0.0,
         };
         let per_hinge_path = self.method != Method::Refactored
-            || (self.request.hessian && self.model.hessian_mode == HessianMode::ProjectPerHinge);
+            || (self.request.hessian && self.mode == HessianMode::ProjectPerHinge);
         let mut first: Option<(u32, EvalError)> = None;
         if per_hinge_path {
             for &h in &p.hinges {

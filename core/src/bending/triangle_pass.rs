@@ -58,7 +58,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                 };
                 (t, err)
             })?;
-        let gauss_newton = self.model.hessian_mode == HessianMode::GaussNewton;
+        let gauss_newton = self.mode == HessianMode::GaussNewton;
         let c = hid.map(|h| {
             if h == NONE || gauss_newton {
                 0.0
