@@ -385,6 +385,27 @@ fn scenes_are_listed_shown_and_validated() {
             text.replace("frames = 90", "frames = 90\nspeed = 2"),
             "speed",
         ),
+        (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\nglobalization = \"trust-me\"",
+            ),
+            "solver.globalization",
+        ),
+        (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\nrelative_gradient_tolerance = -1.0",
+            ),
+            "solver.relative_gradient_tolerance",
+        ),
+        (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\nrelative_step_tolerance = 0.0",
+            ),
+            "solver.relative_step_tolerance",
+        ),
     ];
     for (i, (toml, key)) in cases.iter().enumerate() {
         let f = dir.join(format!("bad{i}.toml"));
@@ -695,4 +716,31 @@ fn shell_drop_falls_onto_the_plane_and_rests_there() {
     assert!(zmin > -0.01 && zmin < 0.01, "lowest vertex at {zmin}");
     assert!(zmax > 0.2 && zmax < 1.05, "highest vertex at {zmax}");
     std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn the_globalization_and_unit_free_stopping_keys_run() {
+    let dir = tmp("globalization");
+    let text = String::from_utf8(hinge(&["scenes", "show", "drape"]).stdout).unwrap();
+    let text = text.replace(
+        "gradient_tolerance = 1e-6",
+        "gradient_tolerance = 1e-6\nglobalization = \"project-on-demand\"\nrelative_step_tolerance = 1e-9",
+    );
+    let f = dir.join("pod.toml");
+    std::fs::write(&f, text).unwrap();
+    let summary = run_summary(
+        &dir,
+        &[f.to_str().unwrap(), "--frames", "6", "--resolution", "12"],
+    );
+    let iterations = summary["newton_iterations"].as_u64().unwrap();
+    let factorizations = summary["factorizations"].as_u64().unwrap();
+    assert!(iterations > 0 && factorizations >= iterations, "{summary}");
+    assert!(
+        summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
+        "{summary}"
+    );
+    assert!(
+        summary["definite_iterations"].as_u64().is_some(),
+        "{summary}"
+    );
 }
