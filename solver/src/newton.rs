@@ -446,8 +446,8 @@ impl Newton {
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
     /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged.
     ///
-    /// Each iteration: [`Newton::assemble`] the reduced Hessian, [`Newton::factor`] it under the
-    /// [`Globalization`], solve for the direction, [`Newton::line_search`] it (with Levenberg–Marquardt
+    /// Each iteration: assemble the reduced Hessian, factor it under the [`Globalization`], solve for the
+    /// direction, line-search it (with Levenberg–Marquardt
     /// retries when that fails), and stop when [`NewtonParams::converged`] says so. The work vectors live in
     /// the solver and are reused: nothing is allocated per iteration.
     ///
