@@ -279,6 +279,9 @@ enum Kind {
     DampedOnePass,
     /// The same two terms as two models (two passes).
     DampedTwoPasses,
+    /// The per-hinge PSD projection (`HessianMode::ProjectPerHinge`: a Jacobi eigendecomposition per hinge;
+    /// there is no closed form, see `hinge_core::bending`'s projection module), one thread.
+    Projected,
 }
 
 /// The thread pools of the parallel rows.
@@ -296,6 +299,8 @@ struct Case<'a> {
     out: hinge_core::bending::Evaluation,
     scratch: hinge_core::bending::Scratch,
     damped: Option<Damped>,
+    /// The same model in `HessianMode::ProjectPerHinge`, when the `projected` row is asked for.
+    projected: Option<BendingModel<DiscreteShells>>,
     times: Vec<Vec<f64>>,
     one_thread_hessian: Option<Vec<f64>>,
 }
@@ -339,10 +344,19 @@ impl<'a> Case<'a> {
         } else {
             None
         };
+        let projected = if kinds.iter().any(|(_, k)| matches!(k, Kind::Projected)) {
+            let mut m = model.clone();
+            m.set_hessian_mode(hinge_core::bending::HessianMode::ProjectPerHinge)
+                .map_err(|e| e.to_string())?;
+            Some(m)
+        } else {
+            None
+        };
         Ok(Self {
             mesh,
             x,
             kinds,
+            projected,
             out: model.new_output(),
             scratch: model.new_scratch(),
             model,
@@ -378,6 +392,19 @@ impl<'a> Case<'a> {
                     _ => pools.many.install(|| eval(scratch, out)),
                 }
                 .map_err(|e| e.to_string())?;
+            }
+            Kind::Projected => {
+                if let Some(m) = &self.projected {
+                    m.evaluate_into(
+                        x,
+                        Request::ALL,
+                        Method::Refactored,
+                        Parallelism::Sequential,
+                        scratch,
+                        out,
+                    )
+                    .map_err(|e| e.to_string())?;
+                }
             }
             Kind::Value => {
                 model
@@ -553,6 +580,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         ("refactored", Kind::Full(Method::Refactored, 2)),
         ("refactored:value", Kind::Value),
         ("per_hinge", Kind::Full(Method::PerHinge, 1)),
+        ("projected", Kind::Projected),
         ("autodiff", Kind::Full(Method::Autodiff, 1)),
         ("refactored_local", Kind::Local(Method::Refactored)),
         ("per_hinge_local", Kind::Local(Method::PerHinge)),
@@ -656,6 +684,12 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                 pl / rl,
                 rf / rl,
                 ad / rf,
+            );
+        }
+        if let (Some(rf), Some(pr)) = (get("refactored", 1), get("projected", 1)) {
+            println!(
+                "{nv} vertices: projected/refactored {:.1}x (1 thread; the eigen path: no closed form exists)",
+                pr / rf
             );
         }
         for mesh in ["grid", "grid-permuted"] {

@@ -730,7 +730,7 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
     std::fs::write(&f, text).unwrap();
     let summary = run_summary(
         &dir,
-        &[f.to_str().unwrap(), "--frames", "6", "--resolution", "12"],
+        &[f.to_str().unwrap(), "--frames", "15", "--resolution", "12"],
     );
     let iterations = summary["newton_iterations"].as_u64().unwrap();
     let factorizations = summary["factorizations"].as_u64().unwrap();
@@ -739,8 +739,10 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
         summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
         "{summary}"
     );
+    // The cloth reaches the sphere within these frames: some exact Hessians fail to factor and the
+    // definite one is used.
     assert!(
-        summary["definite_iterations"].as_u64().is_some(),
+        summary["definite_iterations"].as_u64().unwrap() > 0,
         "{summary}"
     );
 }

@@ -12,14 +12,15 @@
 //!   positive semi-definite Hessian ([`Request::definite`]: Gauss–Newton for hinge terms, the membrane's
 //!   stress clamped to its positive part in the geometric stiffness, the compressive spring term and the
 //!   obstacle-curvature contact term dropped) for this and the following iterations until one takes a full
-//!   step (`α = 1`), then the exact one again; a solve whose first iteration needed it starts the next
-//!   solve with it. A diagonal shift only if the definite Hessian fails too (statics, singular).
+//!   step (`α = 1`), then the exact one again. A diagonal shift only if the definite Hessian fails too
+//!   (statics, singular).
 //!
-//! Measured with `hinge run drape --no-frames` and `hinge run shell-drop --no-frames` (scene key
-//! `solver.globalization`): on the drape project-on-demand needs 727–731 iterations and 912–928
-//! factorizations against the shift's 939 and 2 265 (4.2 s against 7.7 s); on the folding `shell-drop` it
-//! needs twice the iterations (first 19 frames: 857 iterations and 1 550 factorizations against 409 and
-//! 1 148), because the definite membrane and bending Hessians drop the curvature a folding shell needs. Neither reaches one factorization per iteration on both scenes, so the default
+//! Measured with `hinge run drape --no-frames`, `hinge run shell-drop --no-frames` and the same scenes with
+//! `solver.globalization = "project-on-demand"`: on the drape project-on-demand needs 727 iterations and 928
+//! factorizations against the shift's 939 and 2 265; on the folding `shell-drop` 1 331 iterations and
+//! 2 250 factorizations against 1 181 and 3 189, with the worst frame at 167 iterations instead of 74 (in
+//! the impact frames 1–19: 571 against 409 — the definite membrane and hinge Hessians drop curvature a
+//! folding shell needs). Neither policy reaches one factorization per iteration on both scenes, so the default
 //! stays the shift. Always using the definite Hessian (STARK's and Codim-IPC's projected Newton) factors
 //! once per iteration but needs 1 647 iterations on the drape: it converges only linearly.
 //!
@@ -391,9 +392,6 @@ pub struct Newton {
     shifted: Vec<f64>,
     out: Option<SystemEvaluation>,
     work: Work,
-    /// Whether the first iteration of the last solve needed the definite Hessian: the next solve (the next
-    /// time step, usually alike) then starts with it instead of spending a failed factorization.
-    start_definite: bool,
 }
 
 impl std::fmt::Debug for Newton {
@@ -434,7 +432,6 @@ impl Newton {
             shifted: Vec::new(),
             out: None,
             work: Work::default(),
-            start_definite: false,
         })
     }
 
@@ -447,9 +444,9 @@ impl Newton {
     /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged.
     ///
     /// Each iteration: assemble the reduced Hessian, factor it under the [`Globalization`], solve for the
-    /// direction, line-search it (with Levenberg–Marquardt
-    /// retries when that fails), and stop when [`NewtonParams::converged`] says so. The work vectors live in
-    /// the solver and are reused: nothing is allocated per iteration.
+    /// direction, line-search it (with Levenberg–Marquardt retries when that fails), and stop when
+    /// [`NewtonParams::converged`] says so. The work vectors live in the solver and are reused: nothing is
+    /// allocated per iteration.
     ///
     /// # Errors
     /// [`SolverError`] with the statistics so far.
@@ -470,10 +467,10 @@ impl Newton {
                 x.len()
             )));
         }
-        let p = self.params.clone();
+        let params = self.params.clone();
         let mut stats = NewtonStats {
-            gradient_norms: Vec::with_capacity(p.max_iterations + 1),
-            step_norms: Vec::with_capacity(p.max_iterations),
+            gradient_norms: Vec::with_capacity(params.max_iterations + 1),
+            step_norms: Vec::with_capacity(params.max_iterations),
             ..NewtonStats::default()
         };
         let mut out = self.out.take().unwrap_or_else(|| SystemEvaluation {
@@ -487,7 +484,14 @@ impl Newton {
         w.cur.extend_from_slice(x);
         w.trial.clear();
         w.trial.extend_from_slice(x);
-        let result = self.iterate(objective, inertia, &p, &mut stats, &mut out, &mut w);
+        let mut solve = Solve {
+            objective,
+            inertia,
+            params: &params,
+            stats: &mut stats,
+            out: &mut out,
+        };
+        let result = self.iterate(&mut solve, &mut w);
         if result.is_ok() {
             x.copy_from_slice(&w.cur);
         }
@@ -499,59 +503,44 @@ impl Newton {
     /// The Newton loop of [`Newton::minimize`] on the work vectors (`w.cur` is the iterate).
     fn iterate<O: Objective>(
         &mut self,
-        objective: &mut O,
-        inertia: Option<&Inertia>,
-        p: &NewtonParams,
-        stats: &mut NewtonStats,
-        out: &mut SystemEvaluation,
+        s: &mut Solve<'_, O>,
         w: &mut Work,
     ) -> Result<(), SolverError> {
+        let p = s.params;
         // Project on demand: the exact Hessian unless the last exact one failed to factor and no full step
         // has been taken since.
-        let mut definite = self.start_definite && p.globalization == Globalization::ProjectOnDemand;
-        let mut f = self.eval(
-            objective,
-            &w.cur,
-            Request::ALL.with_definite(definite),
-            inertia,
-            out,
-            stats,
-        )?;
-        self.free_gradient(out, &w.cur, inertia, &mut w.g);
+        let mut definite = false;
+        let mut f = s.eval(&w.cur, Request::ALL)?;
+        self.free_gradient(s, &w.cur, &mut w.g);
         let g0 = norm(&w.g);
-        stats.gradient_norms.push(g0);
+        s.stats.gradient_norms.push(g0);
         let mut shift = 0.0_f64;
         for it in 0..p.max_iterations {
             if p.converged(norm(&w.g), g0, None) {
                 return Ok(());
             }
-            self.assemble(out, inertia);
+            self.assemble(s);
             // Levenberg–Marquardt retries: a failed line search raises a minimum diagonal shift.
             let mut damping = 0.0_f64;
             let mut retries = 0;
             let (alpha, accepted) = loop {
-                let factored = self.factor(
-                    objective, &w.cur, inertia, p, stats, out, definite, damping, &mut shift,
-                )?;
+                let factored = self.factor(s, &w.cur, definite, damping, &mut shift)?;
                 definite = factored.definite;
-                if it == 0 {
-                    self.start_definite = definite;
-                }
                 w.d.clear();
                 w.d.extend(w.g.iter().map(|v| -v));
                 let t = Instant::now();
                 let r = self.solver.solve(&mut w.d);
-                stats.solve_seconds += t.elapsed().as_secs_f64();
+                s.stats.solve_seconds += t.elapsed().as_secs_f64();
                 r.map_err(|source| SolverError::Linear {
                     source,
-                    stats: Box::new(stats.clone()),
+                    stats: Box::new(s.stats.clone()),
                 })?;
                 if !(dot(&w.g, &w.d) < 0.0) {
                     // Not a descent direction (possible with an indefinite backend): fall back to −g.
                     w.d.clear();
                     w.d.extend(w.g.iter().map(|v| -v));
                 }
-                let (alpha, accepted) = self.line_search(objective, inertia, p, stats, out, w, f);
+                let (alpha, accepted) = self.line_search(s, w, f);
                 if accepted.is_some() || retries >= p.damped_retries {
                     break (alpha, accepted);
                 }
@@ -561,15 +550,15 @@ impl Newton {
                 } else {
                     damping * 100.0
                 };
-                stats.max_shift = stats.max_shift.max(damping);
+                s.stats.max_shift = s.stats.max_shift.max(damping);
             };
-            stats.iterations = it + 1;
+            s.stats.iterations = it + 1;
             if definite {
-                stats.definite_iterations += 1;
+                s.stats.definite_iterations += 1;
             }
             let Some(_) = accepted else {
                 return Err(SolverError::LineSearch {
-                    stats: Box::new(stats.clone()),
+                    stats: Box::new(s.stats.clone()),
                 });
             };
             // A full step with the definite Hessian: try the exact one again.
@@ -577,63 +566,28 @@ impl Newton {
                 definite = false;
             }
             std::mem::swap(&mut w.cur, &mut w.trial);
-            let request = Request::ALL.with_definite(definite);
-            f = self.eval(objective, &w.cur, request, inertia, out, stats)?;
-            self.free_gradient(out, &w.cur, inertia, &mut w.g);
+            f = s.eval(&w.cur, Request::ALL.with_definite(definite))?;
+            self.free_gradient(s, &w.cur, &mut w.g);
             let gn = norm(&w.g);
-            stats.gradient_norms.push(gn);
+            s.stats.gradient_norms.push(gn);
             let step = alpha * norm(&w.d);
-            stats.step_norms.push(step);
+            s.stats.step_norms.push(step);
             let largest = alpha * largest_vertex_step(&self.reduced.dofs, &w.d);
             if p.single_iteration || p.converged(gn, g0, Some((step, largest))) {
                 return Ok(());
             }
         }
         Err(SolverError::NotConverged {
-            stats: Box::new(stats.clone()),
+            stats: Box::new(s.stats.clone()),
         })
     }
 
-    /// Evaluates the objective plus the inertia energy at `y`.
-    fn eval<O: Objective>(
-        &self,
-        objective: &mut O,
-        y: &[Vector3<f64>],
-        request: Request,
-        inertia: Option<&Inertia>,
-        out: &mut SystemEvaluation,
-        stats: &mut NewtonStats,
-    ) -> Result<f64, SolverError> {
-        let t = Instant::now();
-        let r = objective.evaluate(y, request, out);
-        stats.eval_seconds += t.elapsed().as_secs_f64();
-        r.map_err(|source| SolverError::Eval {
-            source,
-            stats: Box::new(stats.clone()),
-        })?;
-        let kinetic = inertia.map_or(0.0, |i| {
-            y.iter()
-                .zip(&i.x_hat)
-                .zip(&i.masses)
-                .map(|((a, b), m)| m * (a - b).norm_squared())
-                .sum::<f64>()
-                / (2.0 * i.dt * i.dt)
-        });
-        Ok(out.energy + kinetic)
-    }
-
     /// The gradient of F over the free dofs (reduced order) into `g`.
-    fn free_gradient(
-        &self,
-        out: &SystemEvaluation,
-        y: &[Vector3<f64>],
-        inertia: Option<&Inertia>,
-        g: &mut Vec<f64>,
-    ) {
+    fn free_gradient<O>(&self, s: &Solve<'_, O>, y: &[Vector3<f64>], g: &mut Vec<f64>) {
         g.clear();
         g.extend(self.reduced.dofs.iter().map(|&d| {
-            let mut v = out.gradient[d];
-            if let Some(i) = inertia {
+            let mut v = s.out.gradient[d];
+            if let Some(i) = s.inertia {
                 let k = d / 3;
                 v += i.masses[k] * (y[k][d % 3] - i.x_hat[k][d % 3]) / (i.dt * i.dt);
             }
@@ -643,11 +597,11 @@ impl Newton {
 
     /// The reduced Hessian of F (the objective's, plus the inertia's `m/Δt²` on the diagonal) into
     /// `self.values`.
-    fn assemble(&mut self, out: &SystemEvaluation, inertia: Option<&Inertia>) {
+    fn assemble<O>(&mut self, s: &Solve<'_, O>) {
         for (v, &k) in self.values.iter_mut().zip(&self.reduced.source) {
-            *v = out.hessian[k];
+            *v = s.out.hessian[k];
         }
-        if let Some(i) = inertia {
+        if let Some(i) = s.inertia {
             for (r, &dk) in self.reduced.diag.iter().enumerate() {
                 self.values[dk] += i.masses[self.reduced.dofs[r] / 3] / (i.dt * i.dt);
             }
@@ -657,24 +611,20 @@ impl Newton {
     /// Factors the reduced Hessian in `self.values` under the globalization:
     /// 1. as it is (exact, or definite when `definite`), plus `damping` on the diagonal;
     /// 2. with [`Globalization::ProjectOnDemand`], if the exact one is not positive definite: the objective's
-    ///    definite Hessian at `y` ([`Request::definite`], re-evaluated; energy and gradient are unchanged);
+    ///    definite Hessian at `y` ([`Request::definite`], re-evaluated, the Hessian only);
     /// 3. if that fails too (or with [`Globalization::ShiftedExact`]): a diagonal shift, starting near the last
     ///    one that worked (`shift`) and raised 4-fold until the factorization succeeds.
     ///
     /// Every attempt counts in [`NewtonStats::factorizations`].
-    #[allow(clippy::too_many_arguments)]
     fn factor<O: Objective>(
         &mut self,
-        objective: &mut O,
+        s: &mut Solve<'_, O>,
         y: &[Vector3<f64>],
-        inertia: Option<&Inertia>,
-        p: &NewtonParams,
-        stats: &mut NewtonStats,
-        out: &mut SystemEvaluation,
         mut definite: bool,
         damping: f64,
         shift: &mut f64,
     ) -> Result<Factored, SolverError> {
+        let p = s.params;
         let last_shift = *shift;
         *shift = damping;
         let mut attempts = 0;
@@ -694,8 +644,8 @@ impl Newton {
             }
             let t = Instant::now();
             let r = self.solver.factor(&self.shifted);
-            stats.factor_seconds += t.elapsed().as_secs_f64();
-            stats.factorizations += 1;
+            s.stats.factor_seconds += t.elapsed().as_secs_f64();
+            s.stats.factorizations += 1;
             match r {
                 Ok(()) => {
                     return Ok(Factored {
@@ -707,15 +657,8 @@ impl Newton {
                     if !definite && p.globalization == Globalization::ProjectOnDemand =>
                 {
                     definite = true;
-                    self.eval(
-                        objective,
-                        y,
-                        Request::ALL.with_definite(true),
-                        inertia,
-                        out,
-                        stats,
-                    )?;
-                    self.assemble(out, inertia);
+                    s.eval(y, DEFINITE_HESSIAN)?;
+                    self.assemble(s);
                 }
                 Err(LinearError::NotPositiveDefinite { .. }) if attempts < p.max_shifts => {
                     attempts += 1;
@@ -724,12 +667,12 @@ impl Newton {
                     } else {
                         *shift * 4.0
                     };
-                    stats.max_shift = stats.max_shift.max(*shift);
+                    s.stats.max_shift = s.stats.max_shift.max(*shift);
                 }
                 Err(source) => {
                     return Err(SolverError::Linear {
                         source,
-                        stats: Box::new(stats.clone()),
+                        stats: Box::new(s.stats.clone()),
                     });
                 }
             }
@@ -738,17 +681,13 @@ impl Newton {
 
     /// Backtracking Armijo line search on F from `w.cur` along `w.d` (trial points in `w.trial`): the step
     /// length and the accepted F, or `None` after [`NewtonParams::max_line_search`] halvings.
-    #[allow(clippy::too_many_arguments)]
     fn line_search<O: Objective>(
         &self,
-        objective: &mut O,
-        inertia: Option<&Inertia>,
-        p: &NewtonParams,
-        stats: &mut NewtonStats,
-        out: &mut SystemEvaluation,
+        s: &mut Solve<'_, O>,
         w: &mut Work,
         f: f64,
     ) -> (f64, Option<f64>) {
+        let p = s.params;
         let slope = dot(&w.g, &w.d);
         let mut alpha = 1.0;
         for _ in 0..=p.max_line_search {
@@ -763,16 +702,55 @@ impl Newton {
             } else {
                 f + p.armijo * alpha * slope
             };
-            if let Ok(ft) = self.eval(objective, &w.trial, Request::VALUE, inertia, out, stats)
+            if let Ok(ft) = s.eval(&w.trial, Request::VALUE)
                 && ft.is_finite()
                 && ft <= target
             {
                 return (alpha, Some(ft));
             }
             alpha *= 0.5;
-            stats.line_search_steps += 1;
+            s.stats.line_search_steps += 1;
         }
         (alpha, None)
+    }
+}
+
+/// The definite Hessian alone (energy and gradient are already known), for project on demand.
+const DEFINITE_HESSIAN: Request = Request {
+    value: false,
+    gradient: false,
+    hessian: true,
+    definite: true,
+};
+
+/// One solve's borrowed inputs and outputs, shared by the pieces of [`Newton::minimize`].
+struct Solve<'a, O> {
+    objective: &'a mut O,
+    inertia: Option<&'a Inertia>,
+    params: &'a NewtonParams,
+    stats: &'a mut NewtonStats,
+    out: &'a mut SystemEvaluation,
+}
+
+impl<O: Objective> Solve<'_, O> {
+    /// F at `y`: the objective (evaluated into `out` as `request` asks) plus the inertia energy.
+    fn eval(&mut self, y: &[Vector3<f64>], request: Request) -> Result<f64, SolverError> {
+        let t = Instant::now();
+        let r = self.objective.evaluate(y, request, self.out);
+        self.stats.eval_seconds += t.elapsed().as_secs_f64();
+        r.map_err(|source| SolverError::Eval {
+            source,
+            stats: Box::new(self.stats.clone()),
+        })?;
+        let kinetic = self.inertia.map_or(0.0, |i| {
+            y.iter()
+                .zip(&i.x_hat)
+                .zip(&i.masses)
+                .map(|((a, b), m)| m * (a - b).norm_squared())
+                .sum::<f64>()
+                / (2.0 * i.dt * i.dt)
+        });
+        Ok(self.out.energy + kinetic)
     }
 }
 

@@ -131,3 +131,12 @@ pub fn fd_energy_derivatives(
     }
     (g, hess)
 }
+
+/// Runs `f` on a fresh rayon pool of `threads` threads (the thread-count tests of bitwise determinism).
+pub fn on_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a rayon pool")
+        .install(f)
+}

@@ -188,11 +188,7 @@ fn bitwise_identical_for_any_thread_count() {
             .evaluate(&def, Request::ALL, method, Parallelism::Sequential)
             .unwrap();
         for threads in [1, 2, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            let par = pool.install(|| {
+            let par = on_threads(threads, || {
                 model
                     .evaluate(&def, Request::ALL, method, Parallelism::Rayon)
                     .unwrap()

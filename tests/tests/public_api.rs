@@ -224,11 +224,7 @@ fn hessian_into_caller_csr_and_faer_and_own_pool() {
     let bent_big = hinge_core::grid::wave(big.positions());
     let x = &bent_big[..];
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        hinge_tests::on_threads(threads, || {
             model
                 .evaluate(x, Request::ALL, Method::Refactored, Parallelism::Rayon)
                 .unwrap()

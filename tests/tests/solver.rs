@@ -821,6 +821,37 @@ fn both_globalizations_reach_the_same_equilibrium() {
         .map(|(a, b)| (a - b).norm())
         .fold(0.0, f64::max);
     assert!(d <= 1e-6, "different equilibria: {d:e}");
+    // The unit-free gradient test stops the same solve early: at a millionth of the start's gradient, with
+    // the absolute tolerances switched off.
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
+        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    let mut sys = System::new(n, terms).unwrap();
+    let params = NewtonParams {
+        gradient_tolerance: 0.0,
+        step_tolerance: 0.0,
+        relative_gradient_tolerance: 1e-6,
+        max_iterations: 500,
+        ..NewtonParams::default()
+    };
+    let pins = Pins::new(n, pinned.clone()).unwrap();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+    let mut x = start.clone();
+    let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+    let g = &stats.gradient_norms;
+    let (first, last) = (g[0], *g.last().unwrap());
+    assert!(last <= 1e-6 * first, "{first:e} → {last:e}");
+    assert!(g[g.len() - 2] > 1e-6 * first, "stopped one iteration late");
+    assert!(
+        last > 1e-12 * first,
+        "went on past the relative test: {last:e}"
+    );
 }
 
 #[test]

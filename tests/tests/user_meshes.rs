@@ -15,7 +15,7 @@ use hinge_core::shapes::{
     sliver_sheet, torus,
 };
 use hinge_core::{EvalError, MeshError, TriMesh};
-use hinge_tests::{SplitMix64, rel_error};
+use hinge_tests::{SplitMix64, on_threads, rel_error};
 use nalgebra::Vector3;
 
 const SEQ: Parallelism = Parallelism::Sequential;
@@ -307,11 +307,7 @@ fn bitwise_identical_for_any_thread_count_on_renumbered_and_closed_meshes() {
         let model = BendingModel::new(&mesh, TanBending { k: 1.0 }).unwrap();
         assert!(model.topology().hinges().len() >= hinge_core::bending::PARALLEL_MIN_HINGES);
         let run = |threads: usize, method: Method| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| {
+            on_threads(threads, || {
                 model
                     .evaluate(&x, Request::ALL, method, Parallelism::Rayon)
                     .unwrap()
