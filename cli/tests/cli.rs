@@ -546,10 +546,31 @@ fn stability_quick_cases_all_pass() {
     assert_eq!(named("near ±π").len(), 5);
     assert!(named("rest angle near ±π").len() >= 4);
     assert!(named("large time step").len() >= 4);
-    // Stiff beams converge to a small residual.
+    // Stiff beams converge to a small residual; the stiff, small-deflection ones are checked against the
+    // plate formula (within 10%, recomputed here), the soft ones against the strip's length.
+    let mut against = std::collections::BTreeMap::new();
     for c in named("stiff beam") {
         assert!(c["final_residual"].as_f64().unwrap() < 1e-5, "{c}");
+        let (tip, plate) = (
+            c["tip_deflection"].as_f64().unwrap(),
+            c["plate_tip_deflection"].as_f64().unwrap(),
+        );
+        let kind = c["checked_against"].as_str().unwrap();
+        if kind == "plate formula" {
+            assert!(plate <= 0.05 * c["free_length"].as_f64().unwrap(), "{c}");
+            assert!((tip / plate - 1.0).abs() < 0.10, "{c}");
+        } else {
+            assert!(tip < 0.3, "{c}");
+        }
+        *against.entry(kind.to_string()).or_insert(0) += 1;
     }
+    assert_eq!(against.len(), 2, "both checks are exercised: {against:?}");
+    // The plate formula itself (Y = 2e11 Pa, h = 1 cm, ν = 0.3, 10 kg/m², L = 0.295 m).
+    let stiff = named("stiff beam: Y = 2e11 Pa, h = 1e-2 m")[0];
+    let d = 2e11 * 1e-6 / (12.0 * (1.0 - 0.09));
+    let want = 10.0 * 9.81 * 0.295f64.powi(4) / (8.0 * d);
+    let got = stiff["plate_tip_deflection"].as_f64().unwrap();
+    assert!((got / want - 1.0).abs() < 1e-12, "{got} vs {want}");
     // The tan energy is a barrier: its energy grows tenfold and more at each step towards π.
     let tan = named("near ±π: tan-bending")[0];
     assert_eq!(tan["barrier_grows"], true);
