@@ -6,6 +6,7 @@ use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use hinge_core::{TriMesh, export, obj};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
 use hinge_energies::contact::{Contact, Obstacle};
@@ -102,8 +103,12 @@ pub struct EvalArgs {
     #[arg(long)]
     deformed: Option<PathBuf>,
     /// Energy name (see --list-energies).
-    #[arg(long, required_unless_present = "list_energies")]
+    #[arg(long, required_unless_present_any = ["list_energies", "psi"], conflicts_with = "psi")]
     energy: Option<String>,
+    /// A custom hinge energy ψ(θ) in the derive's expression language, for example
+    /// "k * a * (theta - theta_bar).powi(2)"; its parameters come from --param NAME=VALUE.
+    #[arg(long)]
+    psi: Option<String>,
     /// Energy parameter KEY=VALUE (repeatable).
     #[arg(long = "param")]
     params: Vec<String>,
@@ -154,6 +159,24 @@ fn parse_params(
         *slot = v;
     }
     Ok(values)
+}
+
+/// A run-time ψ from `--psi EXPR` and its `--param NAME=VALUE` values.
+pub fn custom_psi(expr: &str, params: &[String]) -> Result<RuntimePsi, String> {
+    let mut values: Vec<(String, ParamValue)> = Vec::new();
+    for p in params {
+        let (key, value) = p
+            .split_once('=')
+            .ok_or_else(|| format!("parameter `{p}` is not NAME=VALUE"))?;
+        let v: f64 = value
+            .parse()
+            .map_err(|_| format!("parameter `{key}`: `{value}` is not a number"))?;
+        if !v.is_finite() {
+            return Err(format!("parameter `{key}` must be finite, got {value}"));
+        }
+        values.push((key.to_string(), ParamValue::Scalar(v)));
+    }
+    RuntimePsi::new(expr, values).map_err(|e| e.to_string())
 }
 
 /// Builds the one-term system for `energy`.
@@ -247,8 +270,13 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         }
         return Ok(());
     }
-    let (Some(rest_path), Some(energy), Some(out)) = (&args.rest, &args.energy, &args.out) else {
-        return Err("eval needs --rest, --energy and --out".into());
+    let (Some(rest_path), Some(out)) = (&args.rest, &args.out) else {
+        return Err("eval needs --rest, --energy (or --psi) and --out".into());
+    };
+    let energy = match (&args.energy, &args.psi) {
+        (Some(e), None) => e.as_str(),
+        (None, Some(_)) => "custom",
+        _ => return Err("eval needs one of --energy and --psi".into()),
     };
     let method = Method::from_name(&args.method).ok_or_else(|| {
         format!(
@@ -256,7 +284,15 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
             args.method
         )
     })?;
-    let params = parse_params(energy, &args.params)?;
+    let custom = match &args.psi {
+        Some(expr) => Some(custom_psi(expr, &args.params)?),
+        None => None,
+    };
+    let params = if custom.is_some() {
+        Default::default()
+    } else {
+        parse_params(energy, &args.params)?
+    };
     let rest = obj::read_obj(rest_path).map_err(|e| e.to_string())?;
     let deformed = match &args.deformed {
         Some(p) => crate::read_deformed(&rest, p)?,
@@ -272,7 +308,17 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .num_threads(threads)
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
-    let mut system = build(energy, &params, &rest, method)?;
+    let mut system = match custom {
+        Some(psi) => {
+            let m = BendingModel::new(&rest, psi).map_err(|e| format!("custom ψ: {e}"))?;
+            System::new(
+                rest.n_vertices(),
+                vec![Box::new(HingeTerm::new("custom", m, method))],
+            )
+            .map_err(|e| e.to_string())?
+        }
+        None => build(energy, &params, &rest, method)?,
+    };
     let e = pool
         .install(|| system.evaluate(deformed.positions(), Request::ALL, Parallelism::Rayon))
         .map_err(|e| format!("deformed mesh: {e}"))?;

@@ -145,6 +145,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
         "willmore" => bending_term(rest, Willmore { k }, kd)?,
         "bridson" => bending_term(rest, Bridson { k }, kd)?,
+        "custom" => bending_term(rest, scene.custom_psi(k)?, kd)?,
         _ => bending_term(rest, TanBending { k }, kd)?,
     };
     let masses = lumped_masses(rest, m.density);

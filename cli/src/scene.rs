@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use hinge_core::TriMesh;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
@@ -113,8 +114,16 @@ pub struct Material {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BendingSpec {
-    /// `discrete-shells`, `tan-bending`, `willmore` or `bridson`.
+    /// `discrete-shells`, `tan-bending`, `willmore`, `bridson`, or `custom` (ψ from [`BendingSpec::psi`]).
     pub energy: String,
+    /// The custom ψ(θ) in the derive's expression language (with `energy = "custom"`).
+    #[serde(default)]
+    pub psi: Option<String>,
+    /// Parameters of the custom ψ: a number, one number per hinge (an array, hinge order), or the path of a
+    /// text file of per-hinge numbers (whitespace-separated, relative to the scene file). A `k` the
+    /// expression reads and this table does not set is the material's stiffness (as for the built-ins).
+    #[serde(default)]
+    pub params: std::collections::BTreeMap<String, ParamSpec>,
     /// Viscous damping coefficient k_d (0: none).
     #[serde(default)]
     pub damping: f64,
@@ -125,6 +134,18 @@ pub struct BendingSpec {
     pub calibration: String,
 }
 
+/// A custom ψ parameter's value in a scene.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum ParamSpec {
+    /// One value for all hinges.
+    Number(f64),
+    /// One value per hinge.
+    List(Vec<f64>),
+    /// A file of per-hinge values (resolved when the scene is loaded).
+    File(String),
+}
+
 fn default_calibration() -> String {
     "eq11".into()
 }
@@ -133,6 +154,8 @@ impl Default for BendingSpec {
     fn default() -> Self {
         Self {
             energy: "tan-bending".into(),
+            psi: None,
+            params: Default::default(),
             damping: 0.0,
             calibration: default_calibration(),
         }
@@ -241,6 +264,16 @@ impl Default for SolverSpec {
 /// # Errors
 /// One line naming the key path of an unknown key or invalid value.
 pub fn parse(text: &str, origin: &str) -> Result<Scene, String> {
+    let mut scene = parse_unchecked(text, origin)?;
+    scene
+        .read_param_files(None)
+        .map_err(|m| format!("{origin}: {m}"))?;
+    scene.validate().map_err(|m| format!("{origin}: {m}"))?;
+    Ok(scene)
+}
+
+/// Deserializes a scene without the value checks (parameter files are still paths).
+fn parse_unchecked(text: &str, origin: &str) -> Result<Scene, String> {
     let de = toml::Deserializer::parse(text)
         .map_err(|e| format!("{origin}: {}", one_line(&e.to_string())))?;
     let scene: Scene = serde_path_to_error::deserialize(de).map_err(|e| {
@@ -255,7 +288,6 @@ pub fn parse(text: &str, origin: &str) -> Result<Scene, String> {
             one_line(&e.inner().to_string())
         )
     })?;
-    scene.validate().map_err(|m| format!("{origin}: {m}"))?;
     Ok(scene)
 }
 
@@ -275,7 +307,14 @@ pub fn load(name_or_path: &str) -> Result<(Scene, Option<PathBuf>), String> {
         let text =
             std::fs::read_to_string(name_or_path).map_err(|e| format!("{name_or_path}: {e}"))?;
         let dir = Path::new(name_or_path).parent().map(Path::to_path_buf);
-        return parse(&text, name_or_path).map(|s| (s, dir));
+        let mut scene = parse_unchecked(&text, name_or_path)?;
+        scene
+            .read_param_files(dir.as_deref())
+            .map_err(|m| format!("{name_or_path}: {m}"))?;
+        scene
+            .validate()
+            .map_err(|m| format!("{name_or_path}: {m}"))?;
+        return Ok((scene, dir));
     }
     Err(format!(
         "unknown scene `{name_or_path}` (built-in: {}; or give a .toml file)",
@@ -292,6 +331,57 @@ fn positive(name: &str, v: f64) -> Result<(), String> {
 }
 
 impl Scene {
+    /// The custom ψ of `[bending]` (`energy = "custom"`), with `k` defaulting to `material_k` when the
+    /// expression reads it and `[bending.params]` does not set it.
+    ///
+    /// # Errors
+    /// The expression's error (with its column), or a parameter file that was not resolved.
+    pub fn custom_psi(&self, material_k: f64) -> Result<RuntimePsi, String> {
+        let expr = self.bending.psi.as_deref().unwrap_or_default();
+        let mut values: Vec<(String, ParamValue)> = Vec::new();
+        for (name, v) in &self.bending.params {
+            let value = match v {
+                ParamSpec::Number(x) => ParamValue::Scalar(*x),
+                ParamSpec::List(xs) => ParamValue::PerHinge(xs.clone()),
+                ParamSpec::File(f) => {
+                    return Err(format!("bending.params.{name}: file `{f}` was not read"));
+                }
+            };
+            values.push((name.clone(), value));
+        }
+        if !self.bending.params.contains_key("k") {
+            let mut names: Vec<String> = values.iter().map(|v| v.0.clone()).collect();
+            names.push("k".into());
+            if hinge_core::psi::runtime::reads_parameter(expr, &names, "k") {
+                values.push(("k".into(), ParamValue::Scalar(material_k)));
+            }
+        }
+        RuntimePsi::new(expr, values).map_err(|e| e.to_string())
+    }
+
+    /// Reads the per-hinge parameter files of `[bending.params]` (paths relative to `dir`).
+    fn read_param_files(&mut self, dir: Option<&Path>) -> Result<(), String> {
+        for (name, v) in &mut self.bending.params {
+            if let ParamSpec::File(f) = v {
+                let path = dir.map_or_else(|| PathBuf::from(&*f), |d| d.join(&*f));
+                let text = std::fs::read_to_string(&path)
+                    .map_err(|e| format!("bending.params.{name}: {}: {e}", path.display()))?;
+                let mut xs = Vec::new();
+                for (k, tok) in text.split_whitespace().enumerate() {
+                    xs.push(tok.parse::<f64>().map_err(|_| {
+                        format!(
+                            "bending.params.{name}: {}: value {} `{tok}` is not a number",
+                            path.display(),
+                            k + 1
+                        )
+                    })?);
+                }
+                *v = ParamSpec::List(xs);
+            }
+        }
+        Ok(())
+    }
+
     /// Value checks serde cannot express, each naming the key path.
     fn validate(&self) -> Result<(), String> {
         positive("dt", self.dt)?;
@@ -358,13 +448,39 @@ impl Scene {
                 return Err("pins.clamp_columns: must be at least 1".into());
             }
         }
-        if !["discrete-shells", "tan-bending", "willmore", "bridson"]
-            .contains(&self.bending.energy.as_str())
+        if ![
+            "discrete-shells",
+            "tan-bending",
+            "willmore",
+            "bridson",
+            "custom",
+        ]
+        .contains(&self.bending.energy.as_str())
         {
             return Err(format!(
-                "bending.energy: unknown `{}` (discrete-shells, tan-bending, willmore, bridson)",
+                "bending.energy: unknown `{}` (discrete-shells, tan-bending, willmore, bridson, custom)",
                 self.bending.energy
             ));
+        }
+        match (self.bending.energy == "custom", &self.bending.psi) {
+            (true, None) => {
+                return Err("bending.psi: `energy = \"custom\"` needs `psi = \"EXPR\"`".into());
+            }
+            (false, Some(_)) => {
+                return Err(format!(
+                    "bending.psi: only with `energy = \"custom\"` (energy is `{}`)",
+                    self.bending.energy
+                ));
+            }
+            (true, Some(_)) => {
+                // Parsed here so a bad expression fails before any work, with its column.
+                self.custom_psi(1.0)
+                    .map_err(|e| format!("bending.psi: {e}"))?;
+            }
+            (false, None) => {}
+        }
+        if self.bending.energy != "custom" && !self.bending.params.is_empty() {
+            return Err("bending.params: only with `energy = \"custom\"`".into());
         }
         match (&self.mesh.cells, &self.mesh.obj, &self.mesh.shape) {
             (Some(c), None, None) if c[0] >= 1 && c[1] >= 1 => {}

@@ -17,6 +17,8 @@
 
 use num_dual::DualNum;
 
+pub mod runtime;
+
 /// Rest-state quantities of one hinge, computed once at set-up.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct RestHinge {
@@ -69,8 +71,8 @@ impl HingeQuantities {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("parameter `{name}`: {message}")]
 pub struct PsiError {
-    /// The parameter (struct field) name.
-    pub name: &'static str,
+    /// The parameter (struct field, or run-time parameter) name.
+    pub name: std::borrow::Cow<'static, str>,
     /// What is wrong.
     pub message: String,
 }
@@ -89,6 +91,18 @@ pub trait HingePsi: Sync {
     /// True when the parameters depend on the step quantities (`theta_prev`, `dt`): the model then calls
     /// [`HingePsi::update_step`] whenever a new step is set.
     const USES_STEP: bool = false;
+
+    /// Whether ψ″ ≡ 0 for this energy (default [`HingePsi::D2_IS_ZERO`]). A run-time ψ knows it only once its
+    /// expression is parsed, so the engine asks this method; it must not change after set-up.
+    fn second_derivative_vanishes(&self) -> bool {
+        Self::D2_IS_ZERO
+    }
+
+    /// Whether the parameters depend on the step quantities (default [`HingePsi::USES_STEP`]); the engine
+    /// asks this method, for the same reason.
+    fn uses_step_quantities(&self) -> bool {
+        Self::USES_STEP
+    }
 
     /// Checks the energy against a mesh with `n_hinges` hinges (per-hinge parameter lengths, finiteness).
     ///
@@ -132,6 +146,14 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
     type Params = (A::Params, B::Params);
     const D2_IS_ZERO: bool = A::D2_IS_ZERO && B::D2_IS_ZERO;
     const USES_STEP: bool = A::USES_STEP || B::USES_STEP;
+
+    fn second_derivative_vanishes(&self) -> bool {
+        self.0.second_derivative_vanishes() && self.1.second_derivative_vanishes()
+    }
+
+    fn uses_step_quantities(&self) -> bool {
+        self.0.uses_step_quantities() || self.1.uses_step_quantities()
+    }
 
     fn validate(&self, n_hinges: usize) -> Result<(), PsiError> {
         self.0.validate(n_hinges)?;
@@ -224,16 +246,16 @@ pub mod handwritten {
         fn check(&self, n_hinges: usize) -> Result<(), PsiError> {
             match self {
                 Stiffness::Uniform(k) if !k.is_finite() => Err(PsiError {
-                    name: "k",
+                    name: "k".into(),
                     message: format!("is not finite ({k})"),
                 }),
                 Stiffness::PerHinge(ks) if ks.len() != n_hinges => Err(PsiError {
-                    name: "k",
+                    name: "k".into(),
                     message: format!("has {} values but the mesh has {n_hinges} hinges", ks.len()),
                 }),
                 Stiffness::PerHinge(ks) => match ks.iter().position(|k| !k.is_finite()) {
                     Some(i) => Err(PsiError {
-                        name: "k",
+                        name: "k".into(),
                         message: format!("value of hinge {i} is not finite ({})", ks[i]),
                     }),
                     None => Ok(()),

@@ -25,9 +25,24 @@
 //! vertex index (so `x1 < x2` as global indices); `T̃` is the other one. This is also the rule for the
 //! conditional transpose of the triangle-refactored Hessian: it applies in exactly one triangle of every
 //! interior edge.
+//!
+//! # Hinge order
+//! Edges are numbered in increasing `(min, max)` order of their two vertex indices (the caller's
+//! numbering), and hinges in the order of their edges: hinge `h` is the `h`-th interior edge in that order.
+//! Every per-hinge array — `#[per_hinge]` fields, run-time ψ parameters, rest angles — is in this order.
+//! [`hinges`] gives the list from a mesh before any model is built.
 
 use crate::error::MeshError;
 use crate::mesh::validate_triangles;
+
+/// The hinges of a mesh, in hinge order (see the module documentation): what per-hinge arrays are indexed
+/// by, available before a model is built.
+///
+/// # Errors
+/// The combinatorial [`MeshError`]s of [`Topology::new`].
+pub fn hinges(mesh: &crate::mesh::TriMesh) -> Result<Vec<Hinge>, MeshError> {
+    Ok(Topology::new(mesh.n_vertices(), mesh.triangles())?.hinges)
+}
 
 /// Sentinel for "no triangle" on the second side of a boundary edge.
 pub const NO_TRIANGLE: usize = usize::MAX;

@@ -7,8 +7,10 @@ use quote::{format_ident, quote, quote_spanned};
 use syn::spanned::Spanned;
 use syn::{Data, DeriveInput, Fields, Type};
 
-use crate::parse::{PROVIDED, Parser};
-use crate::sym::{Arena, Id, Node};
+use hinge_symbolic::Compiled;
+use hinge_symbolic::ast::Cmp;
+use hinge_symbolic::lower::{Lowerer, PROVIDED, SUPPORTED, reserved};
+use hinge_symbolic::sym::{Arena, Id, Node};
 
 struct Field {
     ident: syn::Ident,
@@ -71,12 +73,10 @@ pub fn derive(input: &DeriveInput) -> TokenStream {
                 format!("field `{ident}` of a HingeEnergy must have type {want}"),
             ));
         }
-        if PROVIDED.contains(&ident.to_string().as_str()) || ident == "theta" {
+        if let Some(what) = reserved(&ident.to_string()) {
             errors.push(syn::Error::new(
                 ident.span(),
-                format!(
-                    "field `{ident}` shadows a name the ψ expression language provides; rename it"
-                ),
+                format!("field `{ident}` shadows {what} of the ψ expression language; rename it"),
             ));
         }
         parsed_fields.push(Field { ident, per_hinge });
@@ -104,8 +104,9 @@ pub fn derive(input: &DeriveInput) -> TokenStream {
         ));
     }
     let validate = validate_fn(&parsed_fields);
+    // The expression is checked even when a field is wrong, so that every error shows at once.
     let body = match mode {
-        Some(Mode::Expr(e)) if errors.is_empty() => expr_impl(&e, &parsed_fields, &mut errors),
+        Some(Mode::Expr(e)) => expr_impl(&e, &parsed_fields, &mut errors),
         Some(Mode::Autodiff) if errors.is_empty() => Some(autodiff_impl()),
         _ => None,
     };
@@ -164,13 +165,13 @@ fn validate_fn(fields: &[Field]) -> TokenStream {
             quote! {
                 if self.#id.len() != n_hinges {
                     return ::core::result::Result::Err(::hinge_core::__private::PsiError {
-                        name: #lit,
+                        name: ::std::borrow::Cow::Borrowed(#lit),
                         message: ::std::format!("has {} values but the mesh has {} hinges", self.#id.len(), n_hinges),
                     });
                 }
                 if let ::core::option::Option::Some(i) = self.#id.iter().position(|v| !v.is_finite()) {
                     return ::core::result::Result::Err(::hinge_core::__private::PsiError {
-                        name: #lit,
+                        name: ::std::borrow::Cow::Borrowed(#lit),
                         message: ::std::format!("value of hinge {} is not finite ({})", i, self.#id[i]),
                     });
                 }
@@ -179,7 +180,7 @@ fn validate_fn(fields: &[Field]) -> TokenStream {
             quote! {
                 if !self.#id.is_finite() {
                     return ::core::result::Result::Err(::hinge_core::__private::PsiError {
-                        name: #lit,
+                        name: ::std::borrow::Cow::Borrowed(#lit),
                         message: ::std::format!("is not finite ({})", self.#id),
                     });
                 }
@@ -226,47 +227,33 @@ fn lit(c: f64) -> TokenStream {
     }
 }
 
-/// Nodes reachable from `roots` through θ-dependent nodes, in post-order (operands first).
-fn theta_schedule(arena: &Arena, roots: &[Id]) -> (Vec<Id>, Vec<Id>) {
-    let mut order = Vec::new();
-    let mut hoisted = Vec::new();
-    let mut seen = HashMap::new();
-    fn visit(
-        arena: &Arena,
-        id: Id,
-        order: &mut Vec<Id>,
-        hoisted: &mut Vec<Id>,
-        seen: &mut HashMap<Id, ()>,
-    ) {
-        if seen.insert(id, ()).is_some() {
-            return;
-        }
-        if !arena.depends_on_theta(id) {
-            if arena.as_const(id).is_none() {
-                hoisted.push(id);
-            }
-            return;
-        }
-        for c in arena.children(id) {
-            visit(arena, c, order, hoisted, seen);
-        }
-        order.push(id);
-    }
-    for &r in roots {
-        visit(arena, r, &mut order, &mut hoisted, &mut seen);
-    }
-    (order, hoisted)
-}
-
 fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> Option<TokenStream> {
     let names: Vec<String> = fields.iter().map(|f| f.ident.to_string()).collect();
+    let mut found = Vec::new();
+    let tree = crate::parse::convert(e, &mut found);
     let mut arena = Arena::default();
     let psi = {
-        let mut p = Parser::new(&mut arena, &names);
-        let id = p.expr(e);
-        errors.append(&mut p.errors);
+        let mut low = Lowerer::new(&mut arena, &names);
+        low.inputs_are = "the struct's fields";
+        let id = low.expr(&tree);
+        found.extend(
+            low.errors
+                .drain(..)
+                .map(|x| (x.span, x.message, x.wants_supported_list)),
+        );
         id
     };
+    // The supported list once per expression, with the first error it helps.
+    let mut listed = false;
+    for (span, msg, wants) in found {
+        let msg = if wants && !listed {
+            listed = true;
+            format!("{msg}; {SUPPORTED}")
+        } else {
+            msg
+        };
+        errors.push(syn::Error::new(span, msg));
+    }
     if !errors.is_empty() {
         return None;
     }
@@ -277,19 +264,15 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
         ));
         return None;
     }
-    let d1 = arena.diff(psi);
-    let d2 = arena.diff(d1);
-    let roots = [psi, d1, d2];
-    let (order, hoisted) = theta_schedule(&arena, &roots);
+    let compiled = Compiled::new(arena, psi, names.len());
+    let arena = &compiled.arena;
+    let roots = compiled.roots;
+    let [psi, d1, _] = roots;
+    let (order, hoisted) = (&compiled.order, &compiled.hoisted);
     let slot: HashMap<Id, usize> = hoisted.iter().enumerate().map(|(k, &id)| (id, k)).collect();
     let n_fields = names.len();
-    let step_mask: u64 = (1u64 << (n_fields + 4)) | (1u64 << (n_fields + 5));
-    let uses_step = hoisted
-        .iter()
-        .any(|&h| arena.vars[h.0 as usize] & step_mask != 0);
-    let used_vars = hoisted
-        .iter()
-        .fold(0u64, |acc, &h| acc | arena.vars[h.0 as usize]);
+    let uses_step = compiled.uses_step();
+    let used_vars = compiled.used_vars();
 
     // θ-free code (params): vars as locals, nested expressions.
     fn free(arena: &Arena, id: Id) -> TokenStream {
@@ -322,6 +305,16 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
                 let m = format_ident!("{}", f.name());
                 quote!((#x).#m())
             }
+            Node::Atan2(a, b) => {
+                let (y, x) = (free(arena, a), free(arena, b));
+                quote!((#y).atan2(#x))
+            }
+            Node::Select(c, l, r, a, b) => {
+                let op = cmp_tokens(c);
+                let (l, r) = (free(arena, l), free(arena, r));
+                let (a, b) = (free(arena, a), free(arena, b));
+                quote!((if #l #op #r { #a } else { #b }))
+            }
         }
     }
     let var_lets: Vec<TokenStream> = (0..n_fields + PROVIDED.len())
@@ -342,13 +335,13 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
         })
         .collect();
     let k = hoisted.len();
-    let hoisted_exprs: Vec<TokenStream> = hoisted.iter().map(|&h| free(&arena, h)).collect();
+    let hoisted_exprs: Vec<TokenStream> = hoisted.iter().map(|&h| free(arena, h)).collect();
     let step_updates: Vec<TokenStream> = hoisted
         .iter()
         .enumerate()
-        .filter(|(_, h)| arena.vars[h.0 as usize] & step_mask != 0)
+        .filter(|(_, h)| compiled.reads_step(**h))
         .map(|(i, &h)| {
-            let x = free(&arena, h);
+            let x = free(arena, h);
             quote!(p[#i] = #x;)
         })
         .collect();
@@ -392,6 +385,15 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
                 let m = format_ident!("{}", f.name());
                 quote!((#x).#m())
             }
+            Node::Atan2(a, b) => {
+                let (y, x) = (operand(a), operand(b));
+                quote!((#y).atan2(#x))
+            }
+            Node::Select(c, l, r, a, b) => {
+                let op = cmp_tokens(c);
+                let (l, r, a, b) = (operand(l), operand(r), operand(a), operand(b));
+                quote!((if #l #op #r { #a } else { #b }))
+            }
             Node::Const(c) => lit(c),
             Node::Var(_) => operand(id),
         }
@@ -408,8 +410,8 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     // Energy-only and gradient-only programs: the same nodes' code, scheduled from fewer roots (their θ-free
     // nodes are a subset of the hoisted ones), so ψ and ψ′ are bitwise those of `eval`.
     let lets_for = |roots: &[Id]| -> Vec<TokenStream> {
-        theta_schedule(&arena, roots)
-            .0
+        compiled
+            .order_for(roots)
             .iter()
             .map(|&id| {
                 let t = format_ident!("t{}", id.0);
@@ -421,10 +423,10 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     let lets_value = lets_for(&[psi]);
     let lets_d1 = lets_for(&[psi, d1]);
     let (out_psi, out_d1) = (operand(psi), operand(d1));
-    let d2_zero = arena.as_const(d2) == Some(0.0);
+    let d2_zero = compiled.d2_is_zero();
 
     // Generic ψ for num-dual (ψ root only), θ-dependent nodes as D, θ-free ones as f64.
-    let (dual_order, _) = theta_schedule(&arena, &[psi]);
+    let dual_order = compiled.order_for(&[psi]);
     let dual_operand = |id: Id| -> (TokenStream, bool) {
         if let Some(c) = arena.as_const(id) {
             (lit(c), false)
@@ -470,6 +472,21 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
                     let (x, _) = dual_operand(a);
                     let m = format_ident!("{}", f.name());
                     quote!((#x).#m())
+                }
+                // θ-free: hoisted, never scheduled here.
+                Node::Atan2(..) => quote!(D::from(f64::NAN)),
+                Node::Select(c, l, r, a, b) => {
+                    let op = cmp_tokens(c);
+                    let re = |id: Id| match dual_operand(id) {
+                        (x, true) => quote!(::hinge_core::__private::DualNum::re(&#x)),
+                        (x, false) => x,
+                    };
+                    let as_dual = |id: Id| match dual_operand(id) {
+                        (x, true) => x,
+                        (x, false) => quote!(D::from(#x)),
+                    };
+                    let (l, r, a, b) = (re(l), re(r), as_dual(a), as_dual(b));
+                    quote!((if #l #op #r { #a } else { #b }))
                 }
                 Node::Const(c) => {
                     let l = lit(c);
@@ -531,6 +548,15 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     })
 }
 
+fn cmp_tokens(c: Cmp) -> TokenStream {
+    match c {
+        Cmp::Lt => quote!(<),
+        Cmp::Le => quote!(<=),
+        Cmp::Gt => quote!(>),
+        Cmp::Ge => quote!(>=),
+    }
+}
+
 fn bin(a: TokenStream, op: TokenStream, b: TokenStream) -> TokenStream {
     quote!((#a #op #b))
 }
@@ -586,7 +612,64 @@ mod tests {
     fn all_errors_are_reported_at_once() {
         let out = expand("#[psi(foo * theta.bar() + theta.powf(theta))] struct T { k: f64 }");
         assert!(out.contains("unknown identifier `foo`"), "{out}");
-        assert!(out.contains("unsupported method `bar`"), "{out}");
+        assert!(out.contains("unknown method `bar`"), "{out}");
         assert!(out.contains("must not depend on `theta`"), "{out}");
+    }
+
+    #[test]
+    fn supported_list_once_and_did_you_mean() {
+        let out = expand("#[psi(k * theta.sinn() + theta.cosss() + tehta)] struct T { k: f64 }");
+        assert!(
+            out.contains("unknown method `sinn` (did you mean `sin`?)"),
+            "{out}"
+        );
+        assert!(
+            out.contains("unknown method `cosss` (did you mean `cos`?)"),
+            "{out}"
+        );
+        assert!(
+            out.contains("unknown identifier `tehta` (did you mean `theta`?)"),
+            "{out}"
+        );
+        assert_eq!(out.matches("supported: numbers").count(), 1, "{out}");
+    }
+
+    #[test]
+    fn expression_errors_show_beside_field_type_errors() {
+        let out = expand("#[psi(k * theta.sinn())] struct T { k: f32 }");
+        assert!(out.contains("must have type"), "{out}");
+        assert!(out.contains("unknown method `sinn`"), "{out}");
+    }
+
+    #[test]
+    fn fields_may_not_shadow_constants_or_provided_names() {
+        for f in ["PI", "E", "theta_bar", "theta"] {
+            let out = expand(&format!("#[psi({f} * theta)] struct T {{ {f}: f64 }}"));
+            assert!(out.contains(&format!("field `{f}` shadows")), "{out}");
+        }
+    }
+
+    #[test]
+    fn deep_nesting_is_an_error_not_a_stack_overflow() {
+        // rustc runs proc macros on its 8 MiB main-thread stack; syn's own parser needs it for this input.
+        let out = std::thread::Builder::new()
+            .stack_size(8 << 20)
+            .spawn(|| {
+                let deep = format!("{}theta{}", "(1.0 + ".repeat(300), ")".repeat(300));
+                expand(&format!("#[psi({deep})] struct T {{}}"))
+            })
+            .expect("thread")
+            .join()
+            .expect("no overflow");
+        assert!(out.contains("nested more than"), "{out}");
+    }
+
+    #[test]
+    fn the_new_grammar_generates_code() {
+        let out = expand(
+            "#[psi(k * if theta < 0.0 { abs(theta).powi(3) } else { max(sinh(theta), cosh(theta) - 1.0) } + atan2(theta_bar, a) * PI * std::f64::consts::E * pow(theta, 2))] struct T { k: f64 }",
+        );
+        assert!(!out.contains("compile_error"), "{out}");
+        assert!(out.contains("atan2"), "{out}");
     }
 }

@@ -5,18 +5,16 @@
 //! time. Use it through `hinge_core::HingeEnergy`; the documentation with examples lives in hinge-core.
 //!
 //! The macro parses the expression (every unsupported construct is an error with its span, all reported at
-//! once), builds it in a hash-consed arena (equal subexpressions become one node), differentiates twice with
+//! once) with the language of `hinge-symbolic` — the same one hinge-core's run-time ψ parses from strings —,
+//! builds it in a hash-consed arena (equal subexpressions become one node), differentiates twice with
 //! simplification (constant folding, 0/1 identities, like terms), hoists every θ-free subexpression into the
 //! per-hinge parameters (rest-dependent ones computed at set-up, step-dependent ones once per step) and emits
 //! straight-line code for ψ, ψ′, ψ″ with the common subexpressions shared. It never panics on user input.
 
-// Float comparisons in guards (`Some(x) if x == 0.0`) read as the algebra they implement.
 #![deny(missing_docs)]
-#![allow(clippy::redundant_guards)]
 
 mod expand;
 mod parse;
-mod sym;
 
 use proc_macro::TokenStream;
 

@@ -1,225 +1,273 @@
-//! ψ expression (a `syn::Expr`) → arena nodes, collecting every error with its span.
-
-use std::collections::HashMap;
+//! `syn::Expr` → the shared parse tree ([`hinge_symbolic::ast`]), reporting the Rust syntax the ψ language
+//! does not have. Names, functions and their rules are checked by [`hinge_symbolic::lower`], as at run time.
 
 use proc_macro2::Span;
 use syn::spanned::Spanned;
-use syn::{BinOp, Expr, Lit, Stmt, UnOp};
+use syn::{BinOp, Expr as SynExpr, Lit, Stmt, UnOp};
 
-use crate::sym::{Arena, Func, Id};
+use hinge_symbolic::ast::{self, Cmp, Expr, Let, MAX_DEPTH};
 
-/// Names the framework provides per hinge, in var order after the struct fields.
-pub const PROVIDED: [&str; 6] = [
-    "theta_bar",
-    "a",
-    "rest_length",
-    "rest_area",
-    "theta_prev",
-    "dt",
-];
+/// Syntax errors: (span, message, whether the supported list helps).
+pub type Errors = Vec<(Span, String, bool)>;
 
-pub const SUPPORTED: &str = "supported: float and integer literals, `theta`, struct fields, the provided names \
-     `theta_bar`, `a`, `rest_length`, `rest_area`, `theta_prev`, `dt`, `+ - * /`, unary `-`, parentheses, \
-     `.powi(INT)`, `.powf(θ-free)`, `.sqrt()`, `.sin()`, `.cos()`, `.tan()`, `.exp()`, `.ln()`, `.atan()`, \
-     `.tanh()`, and `{ let NAME = EXPR; … EXPR }` blocks";
-
-pub struct Parser<'a> {
-    pub arena: &'a mut Arena,
-    /// Struct field names in var order (vars 0..fields.len()).
-    pub fields: &'a [String],
-    pub errors: Vec<syn::Error>,
-    scopes: Vec<HashMap<String, Id>>,
+/// Converts `e`, bounding the depth so that no input overflows the recursive passes.
+pub fn convert(e: &SynExpr, errors: &mut Errors) -> Expr<Span> {
+    let mut c = Converter {
+        errors,
+        too_deep: false,
+    };
+    c.expr(e, 0)
 }
 
-impl<'a> Parser<'a> {
-    pub fn new(arena: &'a mut Arena, fields: &'a [String]) -> Self {
-        Self {
-            arena,
-            fields,
-            errors: Vec::new(),
-            scopes: Vec::new(),
+struct Converter<'a> {
+    errors: &'a mut Errors,
+    too_deep: bool,
+}
+
+impl Converter<'_> {
+    fn invalid(&mut self, span: Span, msg: impl Into<String>, supported: bool) -> Expr<Span> {
+        self.errors.push((span, msg.into(), supported));
+        Expr::Invalid { span }
+    }
+
+    fn expr(&mut self, e: &SynExpr, depth: usize) -> Expr<Span> {
+        if depth > MAX_DEPTH {
+            if !self.too_deep {
+                self.too_deep = true;
+                self.errors.push((
+                    e.span(),
+                    format!("the ψ expression is nested more than {MAX_DEPTH} levels deep"),
+                    false,
+                ));
+            }
+            return Expr::Invalid { span: e.span() };
         }
-    }
-
-    fn error(&mut self, span: Span, msg: impl std::fmt::Display) -> Id {
-        self.errors.push(syn::Error::new(span, msg));
-        // A placeholder that keeps parsing going so every error is reported at once.
-        self.arena.constant(0.0)
-    }
-
-    pub fn expr(&mut self, e: &Expr) -> Id {
+        let d = depth + 1;
         match e {
-            Expr::Lit(l) => match &l.lit {
+            SynExpr::Lit(l) => match &l.lit {
                 Lit::Float(f) => match f.base10_parse::<f64>() {
-                    Ok(v) => self.arena.constant(v),
-                    Err(err) => self.error(f.span(), err),
+                    Ok(value) => Expr::Num {
+                        value,
+                        int: None,
+                        span: f.span(),
+                    },
+                    Err(err) => self.invalid(f.span(), err.to_string(), false),
                 },
                 Lit::Int(i) => match i.base10_parse::<i64>() {
-                    Ok(v) => self.arena.constant(v as f64),
-                    Err(err) => self.error(i.span(), err),
+                    Ok(v) => Expr::Num {
+                        value: v as f64,
+                        int: Some(v),
+                        span: i.span(),
+                    },
+                    Err(err) => self.invalid(i.span(), err.to_string(), false),
                 },
-                other => self.error(
-                    other.span(),
-                    format!("unsupported literal in a ψ expression; {SUPPORTED}"),
-                ),
+                other => self.invalid(other.span(), "unsupported literal in a ψ expression", true),
             },
-            Expr::Paren(p) => self.expr(&p.expr),
-            Expr::Group(g) => self.expr(&g.expr),
-            Expr::Path(p) => {
-                let Some(ident) = p.path.get_ident().filter(|_| p.qself.is_none()) else {
-                    return self.error(
-                        p.span(),
-                        format!("unsupported path in a ψ expression; {SUPPORTED}"),
-                    );
-                };
-                let name = ident.to_string();
-                self.name(&name, ident.span())
+            SynExpr::Paren(p) => self.expr(&p.expr, d),
+            SynExpr::Group(g) => self.expr(&g.expr, d),
+            SynExpr::Path(p) => {
+                if p.qself.is_some() || p.path.segments.iter().any(|s| !s.arguments.is_none()) {
+                    return self.invalid(p.span(), "unsupported path in a ψ expression", true);
+                }
+                let name = p
+                    .path
+                    .segments
+                    .iter()
+                    .map(|s| s.ident.to_string())
+                    .collect::<Vec<_>>()
+                    .join("::");
+                Expr::Name {
+                    name,
+                    span: p.span(),
+                }
             }
-            Expr::Unary(u) => match u.op {
+            SynExpr::Unary(u) => match u.op {
                 UnOp::Neg(_) => {
-                    let a = self.expr(&u.expr);
-                    self.arena.neg(a)
+                    let arg = self.expr(&u.expr, d);
+                    Expr::Neg {
+                        arg: Box::new(arg),
+                        span: u.op.span(),
+                    }
                 }
                 _ => {
-                    let _ = self.expr(&u.expr);
-                    self.error(
-                        u.op.span(),
-                        format!("unsupported unary operator; {SUPPORTED}"),
-                    )
+                    let _ = self.expr(&u.expr, d);
+                    self.invalid(u.op.span(), "unsupported unary operator", true)
                 }
             },
-            Expr::Binary(b) => {
-                let l = self.expr(&b.left);
-                let r = self.expr(&b.right);
-                match b.op {
-                    BinOp::Add(_) => self.arena.add(l, r),
-                    BinOp::Sub(_) => self.arena.sub(l, r),
-                    BinOp::Mul(_) => self.arena.mul(l, r),
-                    BinOp::Div(_) => self.arena.div(l, r),
-                    _ => self.error(b.op.span(), format!("unsupported operator; {SUPPORTED}")),
+            SynExpr::Binary(b) => {
+                let lhs = self.expr(&b.left, d);
+                let rhs = self.expr(&b.right, d);
+                let op = match b.op {
+                    BinOp::Add(_) => ast::BinOp::Add,
+                    BinOp::Sub(_) => ast::BinOp::Sub,
+                    BinOp::Mul(_) => ast::BinOp::Mul,
+                    BinOp::Div(_) => ast::BinOp::Div,
+                    BinOp::Lt(_) | BinOp::Le(_) | BinOp::Gt(_) | BinOp::Ge(_) => {
+                        return self.invalid(
+                            b.op.span(),
+                            "a comparison appears only in the condition of an `if`",
+                            false,
+                        );
+                    }
+                    _ => return self.invalid(b.op.span(), "unsupported operator", true),
+                };
+                Expr::Binary {
+                    op,
+                    lhs: Box::new(lhs),
+                    rhs: Box::new(rhs),
+                    span: b.op.span(),
                 }
             }
-            Expr::MethodCall(m) => {
-                let recv = self.expr(&m.receiver);
-                let name = m.method.to_string();
+            SynExpr::MethodCall(m) => {
+                let recv = self.expr(&m.receiver, d);
                 if m.turbofish.is_some() {
-                    return self.error(m.method.span(), "generic arguments are not supported here");
-                }
-                let args: Vec<&Expr> = m.args.iter().collect();
-                match (name.as_str(), args.len()) {
-                    ("powi", 1) => match int_literal(args[0]) {
-                        Some(n) => self.arena.powi(recv, n),
-                        None => self.error(
-                            args[0].span(),
-                            "`powi` takes an integer literal exponent (for example `.powi(2)`)",
-                        ),
-                    },
-                    ("powf", 1) => {
-                        let ex = self.expr(args[0]);
-                        if self.arena.depends_on_theta(ex) {
-                            return self.error(
-                                args[0].span(),
-                                "the exponent of `powf` must not depend on `theta` (write the power with `exp` and `ln` if you need it)",
-                            );
-                        }
-                        self.arena.powf(recv, ex)
-                    }
-                    (f, 0) if Func::from_name(f).is_some() => {
-                        let func = Func::from_name(f).unwrap_or(Func::Sqrt);
-                        self.arena.call(func, recv)
-                    }
-                    (f, n) if Func::from_name(f).is_some() || f == "powi" || f == "powf" => self
-                        .error(
-                            m.method.span(),
-                            format!("`{f}` does not take {n} argument(s) here; {SUPPORTED}"),
-                        ),
-                    (f, _) => self.error(
+                    return self.invalid(
                         m.method.span(),
-                        format!("unsupported method `{f}`; {SUPPORTED}"),
+                        "generic arguments are not supported here",
+                        false,
+                    );
+                }
+                let mut args = vec![recv];
+                args.extend(m.args.iter().map(|a| self.expr(a, d)));
+                Expr::Call {
+                    func: m.method.to_string(),
+                    func_span: m.method.span(),
+                    args,
+                    method: true,
+                }
+            }
+            SynExpr::Call(c) => {
+                let args: Vec<Expr<Span>> = c.args.iter().map(|a| self.expr(a, d)).collect();
+                match &*c.func {
+                    SynExpr::Path(p) if p.qself.is_none() && p.path.get_ident().is_some() => {
+                        let ident = p
+                            .path
+                            .get_ident()
+                            .map(ToString::to_string)
+                            .unwrap_or_default();
+                        Expr::Call {
+                            func: ident,
+                            func_span: p.span(),
+                            args,
+                            method: false,
+                        }
+                    }
+                    other => self.invalid(
+                        other.span(),
+                        "a function call names one function, as in `sin(x)`",
+                        true,
                     ),
                 }
             }
-            Expr::Block(b) if b.label.is_none() => self.block(&b.block),
-            other => self.error(
+            SynExpr::Block(b) if b.label.is_none() => self.block(&b.block, d),
+            SynExpr::If(i) => self.if_expr(i, d),
+            other => self.invalid(
                 other.span(),
-                format!("unsupported expression in a ψ expression; {SUPPORTED}"),
+                "unsupported expression in a ψ expression",
+                true,
             ),
         }
     }
 
-    fn block(&mut self, block: &syn::Block) -> Id {
-        self.scopes.push(HashMap::new());
-        let mut result = None;
+    fn block(&mut self, block: &syn::Block, depth: usize) -> Expr<Span> {
+        let mut lets = Vec::new();
+        let mut value = None;
         let n = block.stmts.len();
         for (i, stmt) in block.stmts.iter().enumerate() {
             match stmt {
                 Stmt::Local(local) => {
-                    let value = match &local.init {
-                        Some(init) if init.diverge.is_none() => self.expr(&init.expr),
-                        _ => self.error(local.span(), "a `let` in a ψ expression needs `= EXPR;`"),
+                    let v = match &local.init {
+                        Some(init) if init.diverge.is_none() => self.expr(&init.expr, depth + 1),
+                        _ => self.invalid(
+                            local.span(),
+                            "a `let` in a ψ expression needs `= EXPR;`",
+                            false,
+                        ),
                     };
                     match &local.pat {
-                        syn::Pat::Ident(pi) if pi.by_ref.is_none() && pi.subpat.is_none() => {
-                            let name = pi.ident.to_string();
-                            if let Some(scope) = self.scopes.last_mut() {
-                                scope.insert(name, value);
-                            }
-                        }
+                        syn::Pat::Ident(pi) if pi.by_ref.is_none() && pi.subpat.is_none() => lets
+                            .push(Let {
+                                name: pi.ident.to_string(),
+                                name_span: pi.ident.span(),
+                                value: v,
+                            }),
                         other => {
-                            self.error(
+                            self.invalid(
                                 other.span(),
                                 "only `let NAME = EXPR;` bindings are supported",
+                                false,
                             );
                         }
                     }
                 }
-                Stmt::Expr(e, None) if i + 1 == n => result = Some(self.expr(e)),
+                Stmt::Expr(e, None) if i + 1 == n => value = Some(self.expr(e, depth + 1)),
                 other => {
-                    self.error(other.span(), "a block in a ψ expression holds `let` bindings and ends with an expression");
+                    self.invalid(
+                        other.span(),
+                        "a block in a ψ expression holds `let` bindings and ends with an expression",
+                        false,
+                    );
                 }
             }
         }
-        self.scopes.pop();
-        match result {
-            Some(r) => r,
-            None => self.error(block.span(), "this block has no final expression"),
+        let value = match value {
+            Some(v) => v,
+            None => self.invalid(block.span(), "this block has no final expression", false),
+        };
+        Expr::Block {
+            lets,
+            value: Box::new(value),
         }
     }
 
-    fn name(&mut self, name: &str, span: Span) -> Id {
-        for scope in self.scopes.iter().rev() {
-            if let Some(&id) = scope.get(name) {
-                return id;
+    fn if_expr(&mut self, i: &syn::ExprIf, depth: usize) -> Expr<Span> {
+        let span = i.if_token.span;
+        let then = self.block(&i.then_branch, depth + 1);
+        let otherwise = match &i.else_branch {
+            Some((_, e)) => self.expr(e, depth + 1),
+            None => self.invalid(span, "an `if` in ψ needs an `else` branch", false),
+        };
+        let (cmp, lhs, rhs) = match &*i.cond {
+            SynExpr::Binary(b) => {
+                let cmp = match b.op {
+                    BinOp::Lt(_) => Some(Cmp::Lt),
+                    BinOp::Le(_) => Some(Cmp::Le),
+                    BinOp::Gt(_) => Some(Cmp::Gt),
+                    BinOp::Ge(_) => Some(Cmp::Ge),
+                    _ => None,
+                };
+                match cmp {
+                    Some(c) => (
+                        c,
+                        self.expr(&b.left, depth + 1),
+                        self.expr(&b.right, depth + 1),
+                    ),
+                    None => {
+                        let x = self.invalid(
+                            i.cond.span(),
+                            "the condition of an `if` is one comparison: `<`, `<=`, `>` or `>=`",
+                            false,
+                        );
+                        (Cmp::Lt, x.clone(), x)
+                    }
+                }
             }
-        }
-        if name == "theta" {
-            return self.arena.theta();
-        }
-        if let Some(i) = self.fields.iter().position(|f| f == name) {
-            return self.arena.var(i);
-        }
-        if let Some(i) = PROVIDED.iter().position(|p| *p == name) {
-            return self.arena.var(self.fields.len() + i);
-        }
-        self.error(
+            other => {
+                let x = self.invalid(
+                    other.span(),
+                    "the condition of an `if` is one comparison: `<`, `<=`, `>` or `>=`",
+                    false,
+                );
+                (Cmp::Lt, x.clone(), x)
+            }
+        };
+        Expr::If {
+            cmp,
+            lhs: Box::new(lhs),
+            rhs: Box::new(rhs),
+            then: Box::new(then),
+            otherwise: Box::new(otherwise),
             span,
-            format!(
-                "unknown identifier `{name}`: a ψ expression may use `theta`, the struct's fields ({}) and the provided \
-                 names `theta_bar`, `a`, `rest_length`, `rest_area`, `theta_prev`, `dt`",
-                if self.fields.is_empty() { "none".to_string() } else { self.fields.join(", ") }
-            ),
-        )
-    }
-}
-
-fn int_literal(e: &Expr) -> Option<i32> {
-    match e {
-        Expr::Lit(l) => match &l.lit {
-            Lit::Int(i) => i.base10_parse::<i32>().ok(),
-            _ => None,
-        },
-        Expr::Unary(u) if matches!(u.op, UnOp::Neg(_)) => int_literal(&u.expr).map(|n| -n),
-        Expr::Paren(p) => int_literal(&p.expr),
-        _ => None,
+        }
     }
 }

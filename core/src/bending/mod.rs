@@ -207,6 +207,9 @@ pub struct BendingModel<P: HingePsi> {
     slot_params: Vec<P::Params>,
     pattern: Arc<SymmetricPattern>,
     hessian_mode: HessianMode,
+    /// θ at the end of the previous step per hinge, and the step (from [`BendingModel::set_step`]): what a
+    /// re-hoist after [`BendingModel::update_psi`] needs. `None` before any step.
+    step: Option<(Vec<f64>, f64)>,
     /// Everything that depends on the pattern's storage order (rebuilt by [`BendingModel::bind`]).
     layout: setup::Layout,
 }
@@ -254,7 +257,7 @@ impl<P: HingePsi> BendingModel<P> {
         let n = rest.n_vertices();
         let pattern = Arc::new(SymmetricPattern::new(
             n,
-            setup::couplings(&topology, P::D2_IS_ZERO),
+            setup::couplings(&topology, psi.second_derivative_vanishes()),
         )?);
         let layout = setup::Layout::new(&topology, &pattern);
         let slot_params = layout.in_slot_order(&params);
@@ -266,8 +269,84 @@ impl<P: HingePsi> BendingModel<P> {
             slot_params,
             pattern,
             hessian_mode: HessianMode::Exact,
+            step: None,
             layout,
         })
+    }
+
+    /// Changes the energy after set-up — a stiffness, a per-hinge field, a run-time parameter — and
+    /// recomputes every hinge's hoisted parameters from the rest state and the current step (what fitting
+    /// and plasticity need).
+    ///
+    /// # Errors
+    /// [`EvalError::Psi`] when the changed energy does not fit the mesh; [`EvalError::Pattern`] when it
+    /// gains a ψ″ the pattern has no wing couplings for (build a new model). On error nothing changes.
+    pub fn update_psi(&mut self, change: impl FnOnce(&mut P)) -> Result<(), EvalError>
+    where
+        P: Clone,
+    {
+        let mut psi = self.psi.clone();
+        change(&mut psi);
+        psi.validate(self.rest.len())?;
+        if !psi.second_derivative_vanishes() && !self.couples_wings(self.hessian_mode) {
+            return Err(EvalError::Pattern {
+                message: "the changed energy has ψ″ ≠ 0 but the model was built for ψ″ ≡ 0 (no wing couplings); build a new model".into(),
+            });
+        }
+        self.psi = psi;
+        self.rehoist();
+        Ok(())
+    }
+
+    /// Sets every hinge's rest angle θ̄ (hinge order) and re-hoists the parameters that depend on it (the
+    /// other rest quantities stay). Bending plasticity updates θ̄ this way.
+    ///
+    /// # Errors
+    /// [`EvalError::Psi`] (parameter `theta_bar`) for a wrong length or a value that is not finite. On error
+    /// nothing changes.
+    pub fn set_rest_angles(&mut self, theta_bar: &[f64]) -> Result<(), EvalError> {
+        let bad = |message: String| {
+            EvalError::Psi(crate::psi::PsiError {
+                name: "theta_bar".into(),
+                message,
+            })
+        };
+        if theta_bar.len() != self.rest.len() {
+            return Err(bad(format!(
+                "has {} values but the mesh has {} hinges",
+                theta_bar.len(),
+                self.rest.len()
+            )));
+        }
+        if let Some(i) = theta_bar.iter().position(|t| !t.is_finite()) {
+            return Err(bad(format!(
+                "value of hinge {i} is not finite ({})",
+                theta_bar[i]
+            )));
+        }
+        for (r, &t) in self.rest.iter_mut().zip(theta_bar) {
+            r.theta_bar = t;
+        }
+        self.rehoist();
+        Ok(())
+    }
+
+    /// Recomputes all per-hinge parameters from the rest quantities and the step state.
+    fn rehoist(&mut self) {
+        self.params = self
+            .rest
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let mut q = HingeQuantities::at_rest(i, r);
+                if let Some((thetas, dt)) = &self.step {
+                    q.theta_prev = thetas[i];
+                    q.dt = *dt;
+                }
+                self.psi.params(&q)
+            })
+            .collect();
+        self.slot_params = self.layout.in_slot_order(&self.params);
     }
 
     /// The vertex pairs this energy couples (the caller's numbering): the three pairs of every triangle with
@@ -280,7 +359,7 @@ impl<P: HingePsi> BendingModel<P> {
 
     /// Whether the Hessian in `mode` has wing–wing (x2–x3) blocks.
     fn couples_wings(&self, mode: HessianMode) -> bool {
-        !P::D2_IS_ZERO || mode == HessianMode::ProjectPerHinge
+        !self.psi.second_derivative_vanishes() || mode == HessianMode::ProjectPerHinge
     }
 
     /// Binds the model to a (possibly larger, shared) pattern that holds every coupling of
@@ -469,7 +548,7 @@ impl<P: HingePsi> BendingModel<P> {
             })?;
             thetas.push(theta);
         }
-        if P::USES_STEP {
+        if self.psi.uses_step_quantities() {
             for (i, (p, r)) in self.params.iter_mut().zip(&self.rest).enumerate() {
                 let q = HingeQuantities {
                     theta_prev: thetas[i],
@@ -480,6 +559,7 @@ impl<P: HingePsi> BendingModel<P> {
             }
             self.slot_params = self.layout.in_slot_order(&self.params);
         }
+        self.step = Some((thetas, dt));
         Ok(())
     }
 
@@ -629,7 +709,7 @@ impl<P: HingePsi> BendingModel<P> {
         self.check_scratch(scratch);
         self.gather_positions(x, &mut scratch.positions, par)?;
         // Pass 1: per hinge.
-        let need = hinge_pass::Need::of(request, P::D2_IS_ZERO);
+        let need = hinge_pass::Need::of(request, self.psi.second_derivative_vanishes());
         let e = self.run_hinge_pass(
             &scratch.positions,
             need,
@@ -718,7 +798,7 @@ impl<P: HingePsi> BendingModel<P> {
         }
         self.check_scratch(scratch);
         self.gather_positions(x, &mut scratch.positions, Parallelism::Sequential)?;
-        let need = hinge_pass::Need::of(Request::ALL, P::D2_IS_ZERO);
+        let need = hinge_pass::Need::of(Request::ALL, self.psi.second_derivative_vanishes());
         self.run_hinge_pass(
             &scratch.positions,
             need,

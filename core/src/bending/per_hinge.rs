@@ -69,6 +69,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             (hid as u32, err)
         })?;
         let g = f.gradient();
+        let d2_zero = m.psi.second_derivative_vanishes();
         let (dpsi, d2psi) = match self.mode {
             HessianMode::GaussNewton => (0.0, s.d2psi.max(0.0)),
             _ => (self.dpsi[slot], s.d2psi),
@@ -84,7 +85,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             } else {
                 hb[a][b] * dpsi
             };
-            if !P::D2_IS_ZERO {
+            if !d2_zero {
                 blk += (g[a] * d2psi) * g[b].transpose();
             }
             blk

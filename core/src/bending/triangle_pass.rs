@@ -94,7 +94,7 @@ impl<P: HingePsi> Ctx<'_, P> {
             blk[3 + i] = n * right.transpose() + left * n.transpose();
         }
         // ψ″ ∇θ∇θᵀ of the assigned hinges.
-        if !P::D2_IS_ZERO {
+        if !self.model.psi.second_derivative_vanishes() {
             for k in assigned {
                 let s = &self.states[hid[k] as usize];
                 let d2 = if gauss_newton {

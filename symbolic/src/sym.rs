@@ -1,7 +1,13 @@
 //! A small symbolic engine: a hash-consed expression arena (so equal subexpressions are one node — common
 //! subexpression elimination for free), simplifying constructors, and differentiation with respect to θ.
+//!
+//! Non-smooth nodes (`Select`, which `abs`, `min`, `max` and `if` lower to) differentiate branch-wise: the
+//! derivative at a switch point is the derivative of the branch the condition selects there (for `abs(x)`
+//! at `x = 0` that of `x`, for `min(a, b)` and `max(a, b)` at `a = b` that of `a`).
 
 use std::collections::HashMap;
+
+use crate::ast::Cmp;
 
 /// Index of a node in the arena.
 #[derive(Clone, Copy, PartialEq, Eq, Hash, Debug, PartialOrd, Ord)]
@@ -9,6 +15,7 @@ pub struct Id(pub u32);
 
 /// Unary functions of the grammar.
 #[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
+#[allow(missing_docs)]
 pub enum Func {
     Sqrt,
     Sin,
@@ -18,9 +25,26 @@ pub enum Func {
     Ln,
     Atan,
     Tanh,
+    Sinh,
+    Cosh,
 }
 
+/// Every unary function, in the order the documentation lists them.
+pub const FUNCS: [Func; 10] = [
+    Func::Sqrt,
+    Func::Sin,
+    Func::Cos,
+    Func::Tan,
+    Func::Exp,
+    Func::Ln,
+    Func::Atan,
+    Func::Tanh,
+    Func::Sinh,
+    Func::Cosh,
+];
+
 impl Func {
+    /// The function's name (the method Rust calls).
     pub fn name(self) -> &'static str {
         match self {
             Func::Sqrt => "sqrt",
@@ -31,25 +55,18 @@ impl Func {
             Func::Ln => "ln",
             Func::Atan => "atan",
             Func::Tanh => "tanh",
+            Func::Sinh => "sinh",
+            Func::Cosh => "cosh",
         }
     }
 
+    /// The function called `s`.
     pub fn from_name(s: &str) -> Option<Self> {
-        [
-            Func::Sqrt,
-            Func::Sin,
-            Func::Cos,
-            Func::Tan,
-            Func::Exp,
-            Func::Ln,
-            Func::Atan,
-            Func::Tanh,
-        ]
-        .into_iter()
-        .find(|f| f.name() == s)
+        FUNCS.into_iter().find(|f| f.name() == s)
     }
 
-    fn apply(self, x: f64) -> f64 {
+    /// The function applied to `x` (what generated code and the run-time program compute).
+    pub fn apply(self, x: f64) -> f64 {
         match self {
             Func::Sqrt => x.sqrt(),
             Func::Sin => x.sin(),
@@ -59,12 +76,17 @@ impl Func {
             Func::Ln => x.ln(),
             Func::Atan => x.atan(),
             Func::Tanh => x.tanh(),
+            Func::Sinh => x.sinh(),
+            Func::Cosh => x.cosh(),
         }
     }
 }
 
 /// A node. `Var(i)` is a θ-free input (struct field or provided quantity) numbered by the caller.
+/// `Atan2(y, x)` is `y.atan2(x)` (θ-free operands only); `Select(cmp, l, r, a, b)` is `a` when `l cmp r`
+/// holds, else `b`.
 #[derive(Clone, Copy, PartialEq, Debug)]
+#[allow(missing_docs)]
 pub enum Node {
     Const(f64),
     Theta,
@@ -77,9 +99,11 @@ pub enum Node {
     Powi(Id, i32),
     Powf(Id, Id),
     Call(Func, Id),
+    Atan2(Id, Id),
+    Select(Cmp, Id, Id, Id, Id),
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
 enum Key {
     Const(u64),
     Theta,
@@ -92,6 +116,8 @@ enum Key {
     Powi(Id, i32),
     Powf(Id, Id),
     Call(Func, Id),
+    Atan2(Id, Id),
+    Select(Cmp, Id, Id, Id, Id),
 }
 
 fn key(n: &Node) -> Key {
@@ -107,13 +133,17 @@ fn key(n: &Node) -> Key {
         Node::Powi(a, n) => Key::Powi(a, n),
         Node::Powf(a, b) => Key::Powf(a, b),
         Node::Call(f, a) => Key::Call(f, a),
+        Node::Atan2(a, b) => Key::Atan2(a, b),
+        Node::Select(c, l, r, a, b) => Key::Select(c, l, r, a, b),
     }
 }
 
 /// The arena. Every node records whether it depends on θ and which vars it uses.
-#[derive(Default)]
+#[derive(Default, Debug, Clone)]
 pub struct Arena {
+    /// The nodes; an [`Id`] indexes them.
     pub nodes: Vec<Node>,
+    /// Whether each node depends on θ.
     pub theta_dep: Vec<bool>,
     /// Bit set of the vars a node depends on (vars are few: fields + six provided names; ≤ 64 supported).
     pub vars: Vec<u64>,
@@ -122,10 +152,12 @@ pub struct Arena {
 }
 
 impl Arena {
+    /// The node `id`.
     pub fn node(&self, id: Id) -> Node {
         self.nodes[id.0 as usize]
     }
 
+    /// Whether `id` depends on θ.
     pub fn depends_on_theta(&self, id: Id) -> bool {
         self.theta_dep[id.0 as usize]
     }
@@ -135,15 +167,7 @@ impl Arena {
         if let Some(&id) = self.index.get(&k) {
             return id;
         }
-        let children: Vec<Id> = match n {
-            Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
-            Node::Add(a, b)
-            | Node::Sub(a, b)
-            | Node::Mul(a, b)
-            | Node::Div(a, b)
-            | Node::Powf(a, b) => vec![a, b],
-            Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
-        };
+        let children = children_of(&n);
         let dep = matches!(n, Node::Theta) || children.iter().any(|c| self.theta_dep[c.0 as usize]);
         let mut vars = children
             .iter()
@@ -159,19 +183,23 @@ impl Arena {
         id
     }
 
+    /// The constant `c`.
     pub fn constant(&mut self, c: f64) -> Id {
         // Normalise −0 to 0 so that identities see one zero.
         self.intern(Node::Const(if c == 0.0 { 0.0 } else { c }))
     }
 
+    /// θ.
     pub fn theta(&mut self) -> Id {
         self.intern(Node::Theta)
     }
 
+    /// Input variable `i`.
     pub fn var(&mut self, i: usize) -> Id {
         self.intern(Node::Var(i))
     }
 
+    /// The value of a constant node.
     pub fn as_const(&self, id: Id) -> Option<f64> {
         match self.node(id) {
             Node::Const(c) => Some(c),
@@ -194,6 +222,7 @@ impl Arena {
         }
     }
 
+    /// `a + b`, simplified.
     pub fn add(&mut self, a: Id, b: Id) -> Id {
         match (self.as_const(a), self.as_const(b)) {
             (Some(x), Some(y)) => return self.constant(x + y),
@@ -221,6 +250,7 @@ impl Arena {
         self.intern(Node::Add(a, b))
     }
 
+    /// `a − b`, simplified.
     pub fn sub(&mut self, a: Id, b: Id) -> Id {
         match (self.as_const(a), self.as_const(b)) {
             (Some(x), Some(y)) => return self.constant(x - y),
@@ -243,6 +273,7 @@ impl Arena {
         self.intern(Node::Sub(a, b))
     }
 
+    /// `a · b`, simplified.
     pub fn mul(&mut self, a: Id, b: Id) -> Id {
         match (self.as_const(a), self.as_const(b)) {
             (Some(x), Some(y)) => return self.constant(x * y),
@@ -280,6 +311,7 @@ impl Arena {
         self.intern(Node::Mul(a, b))
     }
 
+    /// `a / b`, simplified.
     pub fn div(&mut self, a: Id, b: Id) -> Id {
         match (self.as_const(a), self.as_const(b)) {
             (Some(x), Some(y)) if y != 0.0 => return self.constant(x / y),
@@ -305,6 +337,7 @@ impl Arena {
         self.intern(Node::Div(a, b))
     }
 
+    /// `−a`, simplified.
     pub fn neg(&mut self, a: Id) -> Id {
         match self.node(a) {
             Node::Const(c) => self.constant(-c),
@@ -314,6 +347,7 @@ impl Arena {
         }
     }
 
+    /// `a^n`, simplified.
     pub fn powi(&mut self, a: Id, n: i32) -> Id {
         if let Some(c) = self.as_const(a) {
             return self.constant(c.powi(n));
@@ -328,6 +362,7 @@ impl Arena {
         }
     }
 
+    /// `a^b` (b θ-free), simplified.
     pub fn powf(&mut self, a: Id, b: Id) -> Id {
         match (self.as_const(a), self.as_const(b)) {
             (Some(x), Some(y)) => return self.constant(x.powf(y)),
@@ -339,6 +374,7 @@ impl Arena {
         self.intern(Node::Powf(a, b))
     }
 
+    /// `f(a)`, simplified.
     pub fn call(&mut self, f: Func, a: Id) -> Id {
         if let Some(c) = self.as_const(a) {
             return self.constant(f.apply(c));
@@ -346,7 +382,7 @@ impl Arena {
         self.intern(Node::Call(f, a))
     }
 
-    /// dψ/dθ of node `id`, simplified and interned.
+    /// dψ/dθ of node `id`, simplified and interned (recursive: the depth is bounded by the front ends).
     pub fn diff(&mut self, id: Id) -> Id {
         if !self.depends_on_theta(id) {
             return self.constant(0.0);
@@ -435,24 +471,57 @@ impl Arena {
                         let t2 = self.powi(id, 2);
                         self.sub(one, t2)
                     }
+                    Func::Sinh => self.call(Func::Cosh, a),
+                    Func::Cosh => self.call(Func::Sinh, a),
                 };
                 self.mul(outer, da)
+            }
+            // θ-free by construction (the front end rejects θ in its operands): reached only if not.
+            Node::Atan2(..) => self.constant(f64::NAN),
+            Node::Select(c, l, r, a, b) => {
+                let (da, db) = (self.diff(a), self.diff(b));
+                self.select(c, l, r, da, db)
             }
         };
         self.derivative.insert(id, d);
         d
     }
 
+    /// `y.atan2(x)`, simplified (constant operands fold).
+    pub fn atan2(&mut self, y: Id, x: Id) -> Id {
+        if let (Some(a), Some(b)) = (self.as_const(y), self.as_const(x)) {
+            return self.constant(a.atan2(b));
+        }
+        self.intern(Node::Atan2(y, x))
+    }
+
+    /// `if l cmp r { a } else { b }`, simplified (constant conditions and equal branches fold).
+    pub fn select(&mut self, cmp: Cmp, l: Id, r: Id, a: Id, b: Id) -> Id {
+        if a == b {
+            return a;
+        }
+        if let (Some(x), Some(y)) = (self.as_const(l), self.as_const(r)) {
+            return if cmp.holds(x, y) { a } else { b };
+        }
+        self.intern(Node::Select(cmp, l, r, a, b))
+    }
+
     /// Children of a node.
     pub fn children(&self, id: Id) -> Vec<Id> {
-        match self.node(id) {
-            Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
-            Node::Add(a, b)
-            | Node::Sub(a, b)
-            | Node::Mul(a, b)
-            | Node::Div(a, b)
-            | Node::Powf(a, b) => vec![a, b],
-            Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
-        }
+        children_of(&self.node(id))
+    }
+}
+
+fn children_of(n: &Node) -> Vec<Id> {
+    match *n {
+        Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
+        Node::Add(a, b)
+        | Node::Sub(a, b)
+        | Node::Mul(a, b)
+        | Node::Div(a, b)
+        | Node::Powf(a, b)
+        | Node::Atan2(a, b) => vec![a, b],
+        Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
+        Node::Select(_, l, r, a, b) => vec![l, r, a, b],
     }
 }

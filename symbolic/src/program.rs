@@ -1,0 +1,496 @@
+//! From one ψ node to everything both back ends need: ψ′ and ψ″ by [`Arena::diff`], the θ-dependent nodes in
+//! evaluation order, and the θ-free nodes hoisted out of them (computed per hinge at set-up, or per step when
+//! they read `theta_prev` or `dt`). The derive turns a [`Compiled`] into Rust code; [`Tape`] turns it into a
+//! register program for run time. Both evaluate the same nodes with the same operations in the same order.
+
+use std::collections::HashMap;
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+use crate::ast::Cmp;
+use crate::lower::PROVIDED;
+use crate::sym::{Arena, Func, Id, Node};
+
+/// A ψ with its two derivatives, scheduled.
+#[derive(Debug, Clone)]
+pub struct Compiled {
+    /// The arena holding ψ, ψ′, ψ″.
+    pub arena: Arena,
+    /// `[ψ, ψ′, ψ″]`.
+    pub roots: [Id; 3],
+    /// θ-dependent nodes of all three roots, operands first.
+    pub order: Vec<Id>,
+    /// θ-free, non-constant nodes the θ-dependent ones (or the roots) read: the per-hinge parameters.
+    pub hoisted: Vec<Id>,
+    /// The caller's inputs (fields or parameters); vars `n_inputs..` are [`PROVIDED`].
+    pub n_inputs: usize,
+}
+
+impl Compiled {
+    /// Differentiates `psi` twice and schedules it.
+    pub fn new(mut arena: Arena, psi: Id, n_inputs: usize) -> Self {
+        let d1 = arena.diff(psi);
+        let d2 = arena.diff(d1);
+        let roots = [psi, d1, d2];
+        let (order, hoisted) = schedule(&arena, &roots);
+        Self {
+            arena,
+            roots,
+            order,
+            hoisted,
+            n_inputs,
+        }
+    }
+
+    /// The θ-dependent nodes needed for `roots` alone (a subset of [`Compiled::order`], in the same relative
+    /// order, so ψ and ψ′ computed alone are bitwise those of the full program).
+    pub fn order_for(&self, roots: &[Id]) -> Vec<Id> {
+        schedule(&self.arena, roots).0
+    }
+
+    /// Whether a node reads a step quantity (`theta_prev`, `dt`).
+    pub fn reads_step(&self, id: Id) -> bool {
+        let step_mask: u64 = (1u64 << (self.n_inputs + 4)) | (1u64 << (self.n_inputs + 5));
+        self.arena.vars[id.0 as usize] & step_mask != 0
+    }
+
+    /// Whether any hoisted value reads a step quantity (then it is refreshed every time step).
+    pub fn uses_step(&self) -> bool {
+        self.hoisted.iter().any(|&h| self.reads_step(h))
+    }
+
+    /// Bit set of the vars the hoisted values read.
+    pub fn used_vars(&self) -> u64 {
+        self.hoisted
+            .iter()
+            .fold(0u64, |acc, &h| acc | self.arena.vars[h.0 as usize])
+    }
+
+    /// Whether ψ″ ≡ 0 (ψ affine in θ).
+    pub fn d2_is_zero(&self) -> bool {
+        self.arena.as_const(self.roots[2]) == Some(0.0)
+    }
+
+    /// Total number of vars: inputs plus the provided names.
+    pub fn n_vars(&self) -> usize {
+        self.n_inputs + PROVIDED.len()
+    }
+}
+
+/// Nodes reachable from `roots` through θ-dependent nodes, in post-order (operands first), and the θ-free
+/// non-constant nodes where that walk stops.
+fn schedule(arena: &Arena, roots: &[Id]) -> (Vec<Id>, Vec<Id>) {
+    let mut order = Vec::new();
+    let mut hoisted = Vec::new();
+    let mut seen = vec![false; arena.nodes.len()];
+    // Iterative post-order (expressions are depth-limited, but derivatives of deep ones are deeper still).
+    for &r in roots {
+        let mut stack = vec![(r, false)];
+        while let Some((id, expanded)) = stack.pop() {
+            let i = id.0 as usize;
+            if expanded {
+                order.push(id);
+                continue;
+            }
+            if seen[i] {
+                continue;
+            }
+            seen[i] = true;
+            if !arena.depends_on_theta(id) {
+                if arena.as_const(id).is_none() {
+                    hoisted.push(id);
+                }
+                continue;
+            }
+            stack.push((id, true));
+            for c in arena.children(id).into_iter().rev() {
+                if !seen[c.0 as usize] {
+                    stack.push((c, false));
+                }
+            }
+        }
+    }
+    (order, hoisted)
+}
+
+/// What one instruction computes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Op {
+    /// `a + b`
+    Add,
+    /// `a − b`
+    Sub,
+    /// `a · b`
+    Mul,
+    /// `a / b`
+    Div,
+    /// `−a`
+    Neg,
+    /// `a · a` (what `powi(2)` compiles to in both back ends)
+    Square,
+    /// `a.powi(n)`
+    Powi(i32),
+    /// `a.powf(b)`
+    Powf,
+    /// `f(a)`
+    Call(Func),
+    /// `a.atan2(b)`
+    Atan2,
+    /// `if a cmp b { c } else { d }`
+    Select(Cmp),
+}
+
+/// One instruction: `r[dst] = op(r[args[0]], …)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instr {
+    /// The operation.
+    pub op: Op,
+    /// Destination register.
+    pub dst: u16,
+    /// Operand registers (unused ones are 0).
+    pub args: [u16; 4],
+}
+
+/// The arithmetic a program runs on: `f64`, or a dual number for automatic differentiation.
+pub trait Scalar:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// A constant.
+    fn from_f64(v: f64) -> Self;
+    /// The real part (what a comparison compares).
+    fn re(&self) -> f64;
+    /// `self^n`.
+    fn powi(self, n: i32) -> Self;
+    /// `self^e` for a θ-free exponent.
+    fn powf(self, e: Self) -> Self;
+    /// `f(self)`.
+    fn func(self, f: Func) -> Self;
+    /// `self.atan2(x)` (θ-free operands).
+    fn atan2(self, x: Self) -> Self;
+}
+
+impl Scalar for f64 {
+    #[inline]
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    #[inline]
+    fn re(&self) -> f64 {
+        *self
+    }
+    #[inline]
+    fn powi(self, n: i32) -> Self {
+        f64::powi(self, n)
+    }
+    #[inline]
+    fn powf(self, e: Self) -> Self {
+        f64::powf(self, e)
+    }
+    #[inline]
+    fn func(self, f: Func) -> Self {
+        f.apply(self)
+    }
+    #[inline]
+    fn atan2(self, x: Self) -> Self {
+        f64::atan2(self, x)
+    }
+}
+
+/// A straight-line register program. Registers `0..n_inputs` are loaded by the caller, then come the
+/// constants, then temporaries (reused once their value is dead).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Program {
+    n_inputs: usize,
+    consts: Vec<f64>,
+    code: Vec<Instr>,
+    outputs: Vec<u16>,
+    n_regs: usize,
+}
+
+/// The largest register file a program may need (the expression is rejected beyond it).
+pub const MAX_REGISTERS: usize = 1024;
+
+impl Program {
+    /// Compiles the nodes `order` (operands first) computing `outputs`, reading the nodes of `inputs` from
+    /// registers `0..inputs.len()`. `None` when the program needs more than [`MAX_REGISTERS`] registers.
+    pub fn new(arena: &Arena, inputs: &[Id], order: &[Id], outputs: &[Id]) -> Option<Self> {
+        let mut reg: HashMap<Id, u16> = HashMap::new();
+        for (k, &id) in inputs.iter().enumerate() {
+            reg.insert(id, u16::try_from(k).ok()?);
+        }
+        // Constants read by the program (operands of `order`, or outputs themselves).
+        let mut consts = Vec::new();
+        let const_of = |id: Id, reg: &mut HashMap<Id, u16>, consts: &mut Vec<f64>| -> Option<()> {
+            if let (None, Some(c)) = (reg.get(&id), arena.as_const(id)) {
+                reg.insert(id, u16::try_from(inputs.len() + consts.len()).ok()?);
+                consts.push(c);
+            }
+            Some(())
+        };
+        for &id in order {
+            for c in operands(arena.node(id)) {
+                const_of(c, &mut reg, &mut consts)?;
+            }
+        }
+        for &o in outputs {
+            const_of(o, &mut reg, &mut consts)?;
+        }
+        let fixed = inputs.len() + consts.len();
+        // Last use of every node's value (outputs live to the end).
+        let mut last: HashMap<Id, usize> = HashMap::new();
+        for (t, &id) in order.iter().enumerate() {
+            for c in operands(arena.node(id)) {
+                last.insert(c, t);
+            }
+        }
+        for &o in outputs {
+            last.insert(o, usize::MAX);
+        }
+        let mut free: Vec<u16> = Vec::new();
+        let mut n_regs = fixed;
+        let mut code = Vec::with_capacity(order.len());
+        for (t, &id) in order.iter().enumerate() {
+            if reg.contains_key(&id) {
+                // θ itself (an input register), scheduled like any θ-dependent node.
+                continue;
+            }
+            let node = arena.node(id);
+            let ops: Vec<Id> = operands(node);
+            let mut args = [0u16; 4];
+            for (k, c) in ops.iter().enumerate() {
+                args[k] = *reg.get(c)?;
+            }
+            // Operands dying here free their registers before the destination is chosen (it may reuse one:
+            // every operand is read before the result is written).
+            for c in &ops {
+                if last.get(c) == Some(&t)
+                    && let Some(&r) = reg.get(c)
+                    && usize::from(r) >= fixed
+                    && !free.contains(&r)
+                {
+                    free.push(r);
+                }
+            }
+            let dst = match free.pop() {
+                Some(r) => r,
+                None => {
+                    n_regs += 1;
+                    u16::try_from(n_regs - 1).ok()?
+                }
+            };
+            reg.insert(id, dst);
+            let op = match node {
+                Node::Add(..) => Op::Add,
+                Node::Sub(..) => Op::Sub,
+                Node::Mul(..) => Op::Mul,
+                Node::Div(..) => Op::Div,
+                Node::Neg(_) => Op::Neg,
+                Node::Powi(_, 2) => Op::Square,
+                Node::Powi(_, n) => Op::Powi(n),
+                Node::Powf(..) => Op::Powf,
+                Node::Call(f, _) => Op::Call(f),
+                Node::Atan2(..) => Op::Atan2,
+                Node::Select(c, ..) => Op::Select(c),
+                // Leaves are inputs or constants, never scheduled.
+                Node::Const(_) | Node::Theta | Node::Var(_) => return None,
+            };
+            if matches!(op, Op::Square) {
+                args[1] = args[0];
+            }
+            code.push(Instr { op, dst, args });
+        }
+        let outputs = outputs
+            .iter()
+            .map(|o| reg.get(o).copied())
+            .collect::<Option<Vec<u16>>>()?;
+        (n_regs <= MAX_REGISTERS).then_some(Self {
+            n_inputs: inputs.len(),
+            consts,
+            code,
+            outputs,
+            n_regs,
+        })
+    }
+
+    /// Registers the program needs.
+    pub fn registers(&self) -> usize {
+        self.n_regs
+    }
+
+    /// Instructions.
+    pub fn len(&self) -> usize {
+        self.code.len()
+    }
+
+    /// Whether the program has no instructions (its outputs are inputs or constants).
+    pub fn is_empty(&self) -> bool {
+        self.code.is_empty()
+    }
+
+    /// Runs the program on `inputs` (at least as many as it was compiled for), writing its outputs to `out`
+    /// (as many as it has). No allocation: the register file lives on the stack.
+    #[inline]
+    pub fn run<T: Scalar>(&self, inputs: &[T], out: &mut [T]) {
+        self.dispatch(None, inputs, out);
+    }
+
+    /// Runs a θ program of a [`Tape`]: register 0 is `theta`, the next ones the hoisted `params` (at least
+    /// as many as the program reads).
+    #[inline]
+    pub fn run_theta<T: Scalar>(&self, theta: T, params: &[T], out: &mut [T]) {
+        self.dispatch(Some(theta), params, out);
+    }
+
+    #[inline]
+    fn dispatch<T: Scalar>(&self, theta: Option<T>, inputs: &[T], out: &mut [T]) {
+        match self.n_regs {
+            0..=16 => self.run_with::<T, 16>(theta, inputs, out),
+            17..=32 => self.run_with::<T, 32>(theta, inputs, out),
+            33..=64 => self.run_with::<T, 64>(theta, inputs, out),
+            65..=256 => self.run_with::<T, 256>(theta, inputs, out),
+            _ => self.run_with::<T, MAX_REGISTERS>(theta, inputs, out),
+        }
+    }
+
+    #[inline]
+    fn run_with<T: Scalar, const R: usize>(&self, theta: Option<T>, inputs: &[T], out: &mut [T]) {
+        let mut r = [T::from_f64(0.0); R];
+        let n = self.n_inputs;
+        match theta {
+            Some(t) if n > 0 => {
+                r[0] = t;
+                r[1..n].copy_from_slice(&inputs[..n - 1]);
+            }
+            _ => r[..n].copy_from_slice(&inputs[..n]),
+        }
+        for (slot, &c) in r[n..n + self.consts.len()].iter_mut().zip(&self.consts) {
+            *slot = T::from_f64(c);
+        }
+        for ins in &self.code {
+            let [a, b, c, d] = ins.args.map(usize::from);
+            let v = match ins.op {
+                Op::Add => r[a] + r[b],
+                Op::Sub => r[a] - r[b],
+                Op::Mul | Op::Square => r[a] * r[b],
+                Op::Div => r[a] / r[b],
+                Op::Neg => -r[a],
+                Op::Powi(k) => r[a].powi(k),
+                Op::Powf => r[a].powf(r[b]),
+                Op::Call(f) => r[a].func(f),
+                Op::Atan2 => r[a].atan2(r[b]),
+                Op::Select(cmp) => {
+                    if cmp.holds(r[a].re(), r[b].re()) {
+                        r[c]
+                    } else {
+                        r[d]
+                    }
+                }
+            };
+            r[usize::from(ins.dst)] = v;
+        }
+        for (o, &k) in out.iter_mut().zip(&self.outputs) {
+            *o = r[usize::from(k)];
+        }
+    }
+}
+
+/// The operands of a node, in instruction order.
+fn operands(n: Node) -> Vec<Id> {
+    match n {
+        Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
+        Node::Add(a, b)
+        | Node::Sub(a, b)
+        | Node::Mul(a, b)
+        | Node::Div(a, b)
+        | Node::Powf(a, b)
+        | Node::Atan2(a, b) => vec![a, b],
+        Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
+        Node::Select(_, l, r, a, b) => vec![l, r, a, b],
+    }
+}
+
+/// The run-time form of a [`Compiled`] ψ: a program for the hoisted parameters (from the vars), and three
+/// θ programs (ψ; ψ and ψ′; all three) reading `[θ, p_0, …, p_{k−1}]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tape {
+    /// Hoisted parameters from `[v_0, …]` (inputs, then the provided names).
+    pub params: Program,
+    /// ψ.
+    pub value: Program,
+    /// ψ, ψ′.
+    pub first: Program,
+    /// ψ, ψ′, ψ″.
+    pub full: Program,
+    /// Number of hoisted parameters.
+    pub n_params: usize,
+}
+
+impl Tape {
+    /// Compiles `c`. `None` when a program needs more than [`MAX_REGISTERS`] registers.
+    pub fn new(c: &Compiled) -> Option<Self> {
+        let a = &c.arena;
+        // Vars that do not occur get no node; map positions so register i holds var i.
+        let mut var_ids = Vec::with_capacity(c.n_vars());
+        for i in 0..c.n_vars() {
+            let id = a
+                .nodes
+                .iter()
+                .position(|n| *n == Node::Var(i))
+                .map(|k| Id(k as u32));
+            // A var that never occurs: a fresh id beyond the arena, never read.
+            var_ids.push(id.unwrap_or(Id(u32::MAX - i as u32)));
+        }
+        let free_order = free_schedule(a, &c.hoisted);
+        let params = Program::new(a, &var_ids, &free_order, &c.hoisted)?;
+        let theta = a
+            .nodes
+            .iter()
+            .position(|n| *n == Node::Theta)
+            .map_or(Id(u32::MAX), |k| Id(k as u32));
+        let mut inputs = vec![theta];
+        inputs.extend_from_slice(&c.hoisted);
+        let [psi, d1, d2] = c.roots;
+        let value = Program::new(a, &inputs, &c.order_for(&[psi]), &[psi])?;
+        let first = Program::new(a, &inputs, &c.order_for(&[psi, d1]), &[psi, d1])?;
+        let full = Program::new(a, &inputs, &c.order, &[psi, d1, d2])?;
+        Some(Self {
+            params,
+            value,
+            first,
+            full,
+            n_params: c.hoisted.len(),
+        })
+    }
+}
+
+/// θ-free, non-leaf nodes needed for `roots`, operands first.
+fn free_schedule(arena: &Arena, roots: &[Id]) -> Vec<Id> {
+    let mut order = Vec::new();
+    let mut seen = vec![false; arena.nodes.len()];
+    for &r in roots {
+        let mut stack = vec![(r, false)];
+        while let Some((id, expanded)) = stack.pop() {
+            if expanded {
+                order.push(id);
+                continue;
+            }
+            let i = id.0 as usize;
+            if seen[i] {
+                continue;
+            }
+            seen[i] = true;
+            if matches!(arena.node(id), Node::Const(_) | Node::Var(_) | Node::Theta) {
+                continue;
+            }
+            stack.push((id, true));
+            for c in arena.children(id).into_iter().rev() {
+                stack.push((c, false));
+            }
+        }
+    }
+    order
+}
