@@ -478,7 +478,7 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
                 Node::Select(c, l, r, a, b) => {
                     let op = cmp_tokens(c);
                     let re = |id: Id| match dual_operand(id) {
-                        (x, true) => quote!(::hinge_core::__private::DualNum::re(&#x)),
+                        (x, true) => quote!((#x).re()),
                         (x, false) => x,
                     };
                     let as_dual = |id: Id| match dual_operand(id) {

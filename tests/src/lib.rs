@@ -140,3 +140,141 @@ pub fn on_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
         .expect("a rayon pool")
         .install(f)
 }
+
+/// An evaluator of the ψ language that is independent of the symbolic engine: it walks the unsimplified
+/// parse tree (hinge-symbolic's string parser, nothing after it) over any num-dual scalar, with its own
+/// function table. What the tests compare the simplified, differentiated programs against.
+pub mod tree {
+    use hinge_symbolic::ast::{BinOp, Cmp, Expr};
+    use hinge_symbolic::text::Span;
+    use num_dual::DualNum;
+
+    /// ψ at `theta` with the named θ-free values `env` (parameters and provided names).
+    ///
+    /// # Panics
+    /// On a name or function outside the language (the tests only pass expressions that compile).
+    pub fn eval<D: DualNum<Primitive = f64> + Copy>(
+        e: &Expr<Span>,
+        theta: D,
+        env: &[(&str, f64)],
+    ) -> D {
+        let mut lets: Vec<(String, D)> = Vec::new();
+        walk(e, theta, env, &mut lets)
+    }
+
+    fn holds(c: Cmp, l: f64, r: f64) -> bool {
+        match c {
+            Cmp::Lt => l < r,
+            Cmp::Le => l <= r,
+            Cmp::Gt => l > r,
+            Cmp::Ge => l >= r,
+        }
+    }
+
+    fn int(e: &Expr<Span>) -> Option<i32> {
+        match e {
+            Expr::Num { int: Some(n), .. } => i32::try_from(*n).ok(),
+            Expr::Neg { arg, .. } => int(arg).map(|n| -n),
+            _ => None,
+        }
+    }
+
+    fn walk<D: DualNum<Primitive = f64> + Copy>(
+        e: &Expr<Span>,
+        theta: D,
+        env: &[(&str, f64)],
+        lets: &mut Vec<(String, D)>,
+    ) -> D {
+        match e {
+            Expr::Num { value, .. } => D::from(*value),
+            Expr::Name { name, .. } => {
+                if let Some((_, v)) = lets.iter().rev().find(|(n, _)| n == name) {
+                    return *v;
+                }
+                if name == "theta" {
+                    return theta;
+                }
+                if let Some((_, v)) = env.iter().find(|(n, _)| n == name) {
+                    return D::from(*v);
+                }
+                let n = name.replace(' ', "");
+                match n.rsplit("::").next() {
+                    Some("PI") => D::from(std::f64::consts::PI),
+                    Some("E") => D::from(std::f64::consts::E),
+                    _ => panic!("unknown name {name}"),
+                }
+            }
+            Expr::Neg { arg, .. } => -walk(arg, theta, env, lets),
+            Expr::Binary { op, lhs, rhs, .. } => {
+                let (a, b) = (walk(lhs, theta, env, lets), walk(rhs, theta, env, lets));
+                match op {
+                    BinOp::Add => a + b,
+                    BinOp::Sub => a - b,
+                    BinOp::Mul => a * b,
+                    BinOp::Div => a / b,
+                }
+            }
+            Expr::Block { lets: ls, value } => {
+                let depth = lets.len();
+                for l in ls {
+                    let v = walk(&l.value, theta, env, lets);
+                    lets.push((l.name.clone(), v));
+                }
+                let r = walk(value, theta, env, lets);
+                lets.truncate(depth);
+                r
+            }
+            Expr::If {
+                cmp,
+                lhs,
+                rhs,
+                then,
+                otherwise,
+                ..
+            } => {
+                let (l, r) = (walk(lhs, theta, env, lets), walk(rhs, theta, env, lets));
+                if holds(*cmp, l.re(), r.re()) {
+                    walk(then, theta, env, lets)
+                } else {
+                    walk(otherwise, theta, env, lets)
+                }
+            }
+            Expr::Call { func, args, .. } => {
+                let x = walk(&args[0], theta, env, lets);
+                let y = || walk(&args[1], theta, env, &mut lets.clone());
+                match func.as_str() {
+                    "sqrt" => x.sqrt(),
+                    "sin" => x.sin(),
+                    "cos" => x.cos(),
+                    "tan" => x.tan(),
+                    "exp" => x.exp(),
+                    "ln" => x.ln(),
+                    "atan" => x.atan(),
+                    "tanh" => x.tanh(),
+                    "sinh" => x.sinh(),
+                    "cosh" => x.cosh(),
+                    "abs" => {
+                        if x.re() >= 0.0 {
+                            x
+                        } else {
+                            -x
+                        }
+                    }
+                    "min" => {
+                        let y = y();
+                        if x.re() <= y.re() { x } else { y }
+                    }
+                    "max" => {
+                        let y = y();
+                        if x.re() >= y.re() { x } else { y }
+                    }
+                    "powi" | "pow" if int(&args[1]).is_some() => x.powi(int(&args[1]).unwrap_or(1)),
+                    "pow" | "powf" => x.powf(y().re()),
+                    "atan2" => D::from(x.re().atan2(y().re())),
+                    other => panic!("unknown function {other}"),
+                }
+            }
+            Expr::Invalid { .. } => panic!("invalid node"),
+        }
+    }
+}
