@@ -18,6 +18,7 @@ use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{SplitMix64, unit_grid, wave};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::handwritten::{self, Stiffness};
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities, TanBending};
 use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
 use hinge_energies::bending::ViscousDamping;
@@ -150,7 +151,66 @@ fn psi_rows(runs: usize) -> Vec<Row> {
             "psi:dual2:tan-bending",
             time_psi(&TanBending { k: 1.0 }, &samples, runs, true),
         ),
+        row(
+            "psi:runtime:discrete-shells",
+            runtime(DS_TEXT).map_or(f64::NAN, |p| time_psi(&p, &samples, runs, false)),
+        ),
+        row(
+            "psi:runtime:tan-bending",
+            runtime(TAN_TEXT).map_or(f64::NAN, |p| time_psi(&p, &samples, runs, false)),
+        ),
+        compile_row(runs),
     ]
+}
+
+/// An expression of about 100 parse-tree nodes exercising the grammar (`psi:compile` row).
+pub fn compile_benchmark_expression() -> String {
+    let terms: Vec<String> = (1..=5)
+        .map(|i| {
+            format!(
+                "c{i} * a * (sin(theta * {i}.0 + theta_bar) - {i}.5 * cosh(theta_bar)).powi(2) * max(theta, -{i}.0)"
+            )
+        })
+        .collect();
+    terms.join(" + ")
+}
+
+/// Parsing and compiling a ψ string of about 100 nodes, milliseconds per compile (median over runs of
+/// 50 compiles).
+fn compile_row(runs: usize) -> Row {
+    let text = compile_benchmark_expression();
+    let params: Vec<(String, ParamValue)> = (1..=5)
+        .map(|i| (format!("c{i}"), ParamValue::Scalar(1.0)))
+        .collect();
+    let nodes = hinge_symbolic::text::parse(&text).map_or(0, |e| e.node_count());
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let start = Instant::now();
+        for _ in 0..50 {
+            if let Err(e) = std::hint::black_box(RuntimePsi::<32>::new(&text, params.clone())) {
+                eprintln!("psi:compile: {e}");
+                return Row {
+                    method: "psi:compile".into(),
+                    mesh: "none",
+                    threads: 1,
+                    n_vertices: 0,
+                    n_hinges: 1,
+                    median_ms: f64::NAN,
+                    extra: Vec::new(),
+                };
+            }
+        }
+        times.push(start.elapsed().as_secs_f64() * 1e3 / 50.0);
+    }
+    Row {
+        method: "psi:compile".to_string(),
+        mesh: "none",
+        threads: 1,
+        n_vertices: 0,
+        n_hinges: 1,
+        median_ms: median(times),
+        extra: vec![("parse_tree_nodes", nodes as f64)],
+    }
 }
 
 /// Solver rows: one Newton system `M/Δt² + H` of a cloth (tan bending + springs, Δt = 1/60 s, wave-deformed
@@ -282,6 +342,56 @@ enum Kind {
     /// The per-hinge PSD projection (`HessianMode::ProjectPerHinge`: a Jacobi eigendecomposition per hinge;
     /// there is no closed form, see `hinge_core::bending`'s projection module), one thread.
     Projected,
+    /// A full refactored evaluation, one thread, of the ψ model `k` of [`psi_models`] (macro or run-time ψ
+    /// of discrete shells and tan bending).
+    Assembly(usize),
+}
+
+/// The whole-assembly ψ rows: (row name, which model).
+const ASSEMBLY_ROWS: [&str; 4] = [
+    "assembly:macro:discrete-shells",
+    "assembly:runtime:discrete-shells",
+    "assembly:macro:tan-bending",
+    "assembly:runtime:tan-bending",
+];
+
+/// The expressions of the built-ins as run-time ψ strings (the same text as their derive attributes).
+const DS_TEXT: &str = "k * a * (theta - theta_bar).powi(2)";
+const TAN_TEXT: &str =
+    "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)";
+
+fn runtime(text: &str) -> Result<RuntimePsi, String> {
+    RuntimePsi::new(text, [("k", ParamValue::Scalar(1.0))]).map_err(|e| e.to_string())
+}
+
+/// One model per [`ASSEMBLY_ROWS`] entry, each with its buffers, as an evaluation closure.
+type Evaluator = Box<dyn FnMut(&[Vector3<f64>]) -> Result<(), String>>;
+
+fn evaluator<P: HingePsi + 'static>(rest: &TriMesh, psi: P) -> Result<Evaluator, String> {
+    let m = BendingModel::new(rest, psi).map_err(|e| e.to_string())?;
+    let (mut out, mut scratch) = (m.new_output(), m.new_scratch());
+    Ok(Box::new(move |x| {
+        m.evaluate_into(
+            x,
+            Request::ALL,
+            Method::Refactored,
+            Parallelism::Sequential,
+            &mut scratch,
+            &mut out,
+        )
+        .map_err(|e| e.to_string())?;
+        std::hint::black_box(out.energy);
+        Ok(())
+    }))
+}
+
+fn psi_models(rest: &TriMesh) -> Result<Vec<Evaluator>, String> {
+    Ok(vec![
+        evaluator(rest, DiscreteShells { k: 1.0 })?,
+        evaluator(rest, runtime(DS_TEXT)?)?,
+        evaluator(rest, TanBending { k: 1.0 })?,
+        evaluator(rest, runtime(TAN_TEXT)?)?,
+    ])
 }
 
 /// The thread pools of the parallel rows.
@@ -301,6 +411,8 @@ struct Case<'a> {
     damped: Option<Damped>,
     /// The same model in `HessianMode::ProjectPerHinge`, when the `projected` row is asked for.
     projected: Option<BendingModel<DiscreteShells>>,
+    /// The whole-assembly ψ models, when an `assembly:*` row is asked for.
+    assemblies: Vec<Evaluator>,
     times: Vec<Vec<f64>>,
     one_thread_hessian: Option<Vec<f64>>,
 }
@@ -352,11 +464,17 @@ impl<'a> Case<'a> {
         } else {
             None
         };
+        let assemblies = if kinds.iter().any(|(_, k)| matches!(k, Kind::Assembly(_))) {
+            psi_models(rest)?
+        } else {
+            Vec::new()
+        };
         Ok(Self {
             mesh,
             x,
             kinds,
             projected,
+            assemblies,
             out: model.new_output(),
             scratch: model.new_scratch(),
             model,
@@ -392,6 +510,11 @@ impl<'a> Case<'a> {
                     _ => pools.many.install(|| eval(scratch, out)),
                 }
                 .map_err(|e| e.to_string())?;
+            }
+            Kind::Assembly(k) => {
+                if let Some(f) = self.assemblies.get_mut(k) {
+                    f(x)?;
+                }
             }
             Kind::Projected => {
                 if let Some(m) = &self.projected {
@@ -587,6 +710,10 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         ("write_floor", Kind::WriteFloor),
         ("tan+damping:one_pass", Kind::DampedOnePass),
         ("tan+damping:two_passes", Kind::DampedTwoPasses),
+        (ASSEMBLY_ROWS[0], Kind::Assembly(0)),
+        (ASSEMBLY_ROWS[1], Kind::Assembly(1)),
+        (ASSEMBLY_ROWS[2], Kind::Assembly(2)),
+        (ASSEMBLY_ROWS[3], Kind::Assembly(3)),
     ];
     if all > 2 {
         kinds.insert(2, ("refactored", Kind::Full(Method::Refactored, all)));
@@ -685,6 +812,17 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                 rf / rl,
                 ad / rf,
             );
+        }
+        for energy in ["discrete-shells", "tan-bending"] {
+            if let (Some(m), Some(r)) = (
+                get(&format!("assembly:macro:{energy}"), 1),
+                get(&format!("assembly:runtime:{energy}"), 1),
+            ) {
+                println!(
+                    "{nv} vertices: whole assembly, run-time ψ / derived ψ, {energy}: {:.3}x (1 thread)",
+                    r / m
+                );
+            }
         }
         if let (Some(rf), Some(pr)) = (get("refactored", 1), get("projected", 1)) {
             println!(

@@ -2,11 +2,12 @@
 
 use std::path::PathBuf;
 
+use crate::scene::CustomPsi;
 use clap::Args;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
+use hinge_core::psi::runtime::ParamValue;
 use hinge_core::{TriMesh, export, obj};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
 use hinge_energies::contact::{Contact, Obstacle};
@@ -162,7 +163,7 @@ fn parse_params(
 }
 
 /// A run-time ψ from `--psi EXPR` and its `--param NAME=VALUE` values.
-pub fn custom_psi(expr: &str, params: &[String]) -> Result<RuntimePsi, String> {
+pub fn custom_psi(expr: &str, params: &[String]) -> Result<CustomPsi, String> {
     let mut values: Vec<(String, ParamValue)> = Vec::new();
     for p in params {
         let (key, value) = p
@@ -176,7 +177,7 @@ pub fn custom_psi(expr: &str, params: &[String]) -> Result<RuntimePsi, String> {
         }
         values.push((key.to_string(), ParamValue::Scalar(v)));
     }
-    RuntimePsi::new(expr, values).map_err(|e| e.to_string())
+    CustomPsi::new(expr, values)
 }
 
 /// Builds the one-term system for `energy`.
@@ -310,12 +311,20 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .map_err(|e| format!("thread pool: {e}"))?;
     let mut system = match custom {
         Some(psi) => {
-            let m = BendingModel::new(&rest, psi).map_err(|e| format!("custom ψ: {e}"))?;
-            System::new(
-                rest.n_vertices(),
-                vec![Box::new(HingeTerm::new("custom", m, method))],
-            )
-            .map_err(|e| e.to_string())?
+            let e = |e: hinge_core::EvalError| format!("custom ψ: {e}");
+            let term: Box<dyn Energy> = match psi {
+                CustomPsi::Small(p) => Box::new(HingeTerm::new(
+                    "custom",
+                    BendingModel::new(&rest, p).map_err(e)?,
+                    method,
+                )),
+                CustomPsi::Large(p) => Box::new(HingeTerm::new(
+                    "custom",
+                    BendingModel::new(&rest, p).map_err(e)?,
+                    method,
+                )),
+            };
+            System::new(rest.n_vertices(), vec![term]).map_err(|e| e.to_string())?
         }
         None => build(energy, &params, &rest, method)?,
     };

@@ -145,7 +145,10 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
         "willmore" => bending_term(rest, Willmore { k }, kd)?,
         "bridson" => bending_term(rest, Bridson { k }, kd)?,
-        "custom" => bending_term(rest, scene.custom_psi(k)?, kd)?,
+        "custom" => match scene.custom_psi(k)? {
+            crate::scene::CustomPsi::Small(p) => bending_term(rest, p, kd)?,
+            crate::scene::CustomPsi::Large(p) => bending_term(rest, p, kd)?,
+        },
         _ => bending_term(rest, TanBending { k }, kd)?,
     };
     let masses = lumped_masses(rest, m.density);

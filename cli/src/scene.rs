@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use hinge_core::TriMesh;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
@@ -132,6 +132,31 @@ pub struct BendingSpec {
     /// `hinge_energies::bending::plate_consistent_stiffness`).
     #[serde(default = "default_calibration")]
     pub calibration: String,
+}
+
+/// A run-time ψ with the capacity its expression needs: 8 hoisted values per hinge (the fast default), or 32.
+#[derive(Debug, Clone)]
+pub enum CustomPsi {
+    /// Up to 8 hoisted values.
+    Small(RuntimePsi),
+    /// Up to 32.
+    Large(RuntimePsi<32>),
+}
+
+impl CustomPsi {
+    /// Compiles `expr` with `values`, in the smallest capacity that holds it.
+    ///
+    /// # Errors
+    /// The expression's one-line error.
+    pub fn new(expr: &str, values: Vec<(String, ParamValue)>) -> Result<Self, String> {
+        match RuntimePsi::new(expr, values.clone()) {
+            Ok(p) => Ok(CustomPsi::Small(p)),
+            Err(RuntimePsiError::TooManyHoisted { .. }) => RuntimePsi::<32>::new(expr, values)
+                .map(CustomPsi::Large)
+                .map_err(|e| e.to_string()),
+            Err(e) => Err(e.to_string()),
+        }
+    }
 }
 
 /// A custom ψ parameter's value in a scene.
@@ -336,7 +361,7 @@ impl Scene {
     ///
     /// # Errors
     /// The expression's error (with its column), or a parameter file that was not resolved.
-    pub fn custom_psi(&self, material_k: f64) -> Result<RuntimePsi, String> {
+    pub fn custom_psi(&self, material_k: f64) -> Result<CustomPsi, String> {
         let expr = self.bending.psi.as_deref().unwrap_or_default();
         let mut values: Vec<(String, ParamValue)> = Vec::new();
         for (name, v) in &self.bending.params {
@@ -356,7 +381,7 @@ impl Scene {
                 values.push(("k".into(), ParamValue::Scalar(material_k)));
             }
         }
-        RuntimePsi::new(expr, values).map_err(|e| e.to_string())
+        CustomPsi::new(expr, values)
     }
 
     /// Reads the per-hinge parameter files of `[bending.params]` (paths relative to `dir`).

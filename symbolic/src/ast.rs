@@ -155,6 +155,31 @@ impl<S: Copy> Expr<S> {
     }
 }
 
+impl<S> Expr<S> {
+    /// Nodes of the tree (each literal, name, operator, call, block, binding and `if` counts one).
+    pub fn node_count(&self) -> usize {
+        match self {
+            Expr::Num { .. } | Expr::Name { .. } | Expr::Invalid { .. } => 1,
+            Expr::Neg { arg, .. } => 1 + arg.node_count(),
+            Expr::Binary { lhs, rhs, .. } => 1 + lhs.node_count() + rhs.node_count(),
+            Expr::Call { args, .. } => 1 + args.iter().map(Expr::node_count).sum::<usize>(),
+            Expr::Block { lets, value } => {
+                1 + value.node_count()
+                    + lets.iter().map(|l| 1 + l.value.node_count()).sum::<usize>()
+            }
+            Expr::If {
+                lhs,
+                rhs,
+                then,
+                otherwise,
+                ..
+            } => {
+                1 + lhs.node_count() + rhs.node_count() + then.node_count() + otherwise.node_count()
+            }
+        }
+    }
+}
+
 /// The deepest nesting a ψ expression may have (operators, calls, blocks and `if`s each add a level). Deeper
 /// input is rejected with an error rather than risking the stack of the recursive passes.
 pub const MAX_DEPTH: usize = 128;

@@ -1,7 +1,7 @@
 use hinge_core::HingeEnergy;
 
 #[derive(HingeEnergy)]
-#[psi(k * (theta - theta_bar).abs())]
+#[psi(k * (theta - theta_bar).sinn() + theta.log(2.0))]
 pub struct Bad {
     pub k: f64,
 }
