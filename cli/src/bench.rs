@@ -187,7 +187,9 @@ fn compile_row(runs: usize) -> Row {
     for _ in 0..runs {
         let start = Instant::now();
         for _ in 0..50 {
-            if let Err(e) = std::hint::black_box(RuntimePsi::<32>::new(&text, params.clone())) {
+            if let Err(e) =
+                std::hint::black_box(RuntimePsi::<32>::with_capacity(&text, params.clone()))
+            {
                 eprintln!("psi:compile: {e}");
                 return Row {
                     method: "psi:compile".into(),

@@ -151,9 +151,11 @@ impl CustomPsi {
     pub fn new(expr: &str, values: Vec<(String, ParamValue)>) -> Result<Self, String> {
         match RuntimePsi::new(expr, values.clone()) {
             Ok(p) => Ok(CustomPsi::Small(p)),
-            Err(RuntimePsiError::TooManyHoisted { .. }) => RuntimePsi::<32>::new(expr, values)
-                .map(CustomPsi::Large)
-                .map_err(|e| e.to_string()),
+            Err(RuntimePsiError::TooManyHoisted { .. }) => {
+                RuntimePsi::<32>::with_capacity(expr, values)
+                    .map(CustomPsi::Large)
+                    .map_err(|e| e.to_string())
+            }
             Err(e) => Err(e.to_string()),
         }
     }

@@ -767,3 +767,171 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
         "{summary}"
     );
 }
+
+/// `hinge eval --psi`: the derive's text of a built-in gives the built-in's files byte for byte; parameter
+/// errors name the parameter; a malformed string is one line with its column and a non-zero exit.
+#[test]
+fn eval_psi_matches_the_builtin_and_reports_errors() {
+    let dir = tmp("psi");
+    let (a, b) = (dir.join("a"), dir.join("b"));
+    let rest = data("grid80_rest.obj");
+    let deformed = data("grid80_jitter.obj");
+    let tan = "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)";
+    let o = hinge(&[
+        "eval",
+        "--rest",
+        &rest,
+        "--deformed",
+        &deformed,
+        "--psi",
+        tan,
+        "--param",
+        "k=0.7",
+        "--out",
+        a.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = hinge(&[
+        "eval",
+        "--rest",
+        &rest,
+        "--deformed",
+        &deformed,
+        "--energy",
+        "tan-bending",
+        "--param",
+        "k=0.7",
+        "--out",
+        b.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["gradient.txt", "hessian.mtx"] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    for (args, want) in [
+        (
+            vec![
+                "--psi",
+                "k * theta.powi(2)",
+                "--param",
+                "k=1",
+                "--param",
+                "c=2",
+            ],
+            "parameter `c` is not used",
+        ),
+        (
+            vec!["--psi", "k * c * theta.powi(2)", "--param", "k=1"],
+            "unknown identifier `c`",
+        ),
+        (
+            vec!["--psi", "k * (theta +* 2)", "--param", "k=1"],
+            "column 13: expected",
+        ),
+        (
+            vec![
+                "--psi",
+                "k * theta",
+                "--energy",
+                "tan-bending",
+                "--param",
+                "k=1",
+            ],
+            "cannot be used with",
+        ),
+    ] {
+        let mut all = vec!["eval", "--rest", &rest, "--out", a.to_str().unwrap()];
+        all.extend(args.iter());
+        let o = hinge(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(err.contains(want), "{args:?}: {err}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// A scene with `energy = "custom"`: the tan expression with `k` from the material runs the drape to the
+/// same counts as the built-in tan bending; per-hinge parameters come from an array or a file; bad keys are
+/// one-line errors naming them.
+#[test]
+fn custom_psi_scenes_run_like_the_builtin() {
+    let dir = tmp("custom-scene");
+    let text = String::from_utf8(hinge(&["scenes", "show", "drape"]).stdout).unwrap();
+    let builtin = dir.join("builtin.toml");
+    std::fs::write(&builtin, &text).unwrap();
+    let custom_text = text.replace(
+        "energy = \"tan-bending\"",
+        "energy = \"custom\"\npsi = \"k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)\"",
+    );
+    assert_ne!(custom_text, text);
+    let custom = dir.join("custom.toml");
+    std::fs::write(&custom, &custom_text).unwrap();
+    let args = ["--frames", "12", "--resolution", "10"];
+    let (d1, d2) = (dir.join("o1"), dir.join("o2"));
+    let s1 = run_summary(&d1, &[&[builtin.to_str().unwrap()][..], &args].concat());
+    let s2 = run_summary(&d2, &[&[custom.to_str().unwrap()][..], &args].concat());
+    for key in ["newton_iterations", "factorizations", "line_search_steps"] {
+        assert_eq!(s1[key], s2[key], "{key}: {s1} {s2}");
+    }
+    // Per-hinge values from a file (100 hinges of the 10x10 grid: 3·10·10 − 2·10 = 280 interior edges).
+    let n_hinges = 280;
+    let values: Vec<String> = (0..n_hinges)
+        .map(|h| format!("{}", 1.0 + (h % 3) as f64))
+        .collect();
+    std::fs::write(dir.join("scale.txt"), values.join("\n")).unwrap();
+    let per_hinge = custom_text.replace(
+        "psi = \"k * a",
+        "params = { s = \"scale.txt\" }\npsi = \"s * k * a",
+    );
+    let f = dir.join("per_hinge.toml");
+    std::fs::write(&f, &per_hinge).unwrap();
+    let s = run_summary(
+        &dir.join("o3"),
+        &[&[f.to_str().unwrap()][..], &args].concat(),
+    );
+    assert!(s["newton_iterations"].as_u64().unwrap() > 0, "{s}");
+    for (i, (from, to, want)) in [
+        ("psi = \"k * a", "psi = \"q * a", "unknown identifier `q`"),
+        (
+            "psi = \"k * a",
+            "params = { z = 1.0 }\npsi = \"k * a",
+            "parameter `z` is not used",
+        ),
+        (
+            "psi = \"k * a",
+            "params = { s = [1.0, 2.0] }\npsi = \"s * k * a",
+            "has 2 values but the mesh has 280 hinges",
+        ),
+        (
+            "energy = \"custom\"\n",
+            "energy = \"tan-bending\"\n",
+            "only with `energy = \"custom\"`",
+        ),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let bad = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&bad, custom_text.replace(from, to)).unwrap();
+        let o = hinge(&[
+            "run",
+            bad.to_str().unwrap(),
+            "--frames",
+            "1",
+            "--resolution",
+            "10",
+            "--no-frames",
+            "--out",
+            dir.join("ob").to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{i}");
+        assert!(err.contains(want), "{i}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{i}: {err}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

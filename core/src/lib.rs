@@ -43,13 +43,41 @@
 //! assert_eq!(flat.energy, 0.0);
 //! ```
 //!
-//! The expression language: `theta`; the struct's `f64` fields (a field marked `#[per_hinge]` is a
-//! `Vec<f64>` with one value per hinge); the provided per-hinge names `theta_bar`, `a` (= 3|ē|²/Ā),
+//! The expression language (the same at compile time and at run time, defined once in `hinge-symbolic`):
+//! `theta`; the struct's `f64` fields (a field marked `#[per_hinge]` is a `Vec<f64>` with one value per
+//! hinge, in the hinge order of [`topology`]); the provided per-hinge names `theta_bar`, `a` (= 3|ē|²/Ā),
 //! `rest_length`, `rest_area`, and for damping `theta_prev` (θ at the end of the previous step, see
-//! [`bending::BendingModel::set_step`]) and `dt`; literals, `+ - * /`, unary `-`, parentheses, `.powi(INT)`,
-//! `.powf(θ-free)`, `.sqrt()`, `.sin()`, `.cos()`, `.tan()`, `.exp()`, `.ln()`, `.atan()`, `.tanh()` and
-//! `{ let x = …; … }` blocks. Anything else is a compile error pointing at the offending token. For a ψ the
-//! language cannot express, `#[psi(autodiff)]` takes an inherent method
+//! [`bending::BendingModel::set_step`]) and `dt`; the constants `PI`, `E` (also `std::f64::consts::PI`);
+//! literals, `+ - * /`, unary `-`, parentheses; `sqrt sin cos tan exp ln atan tanh sinh cosh abs` as
+//! `f(x)` or `x.f()`; `min(a, b)`, `max(a, b)`; `powi(x, INT)`, `powf(x, θ-free)`, `pow(x, y)`;
+//! `atan2(θ-free, θ-free)`; `if A < B { … } else { … }` (also `<=`, `>`, `>=`, `else if`); and
+//! `{ let x = …; … }` blocks. Anything else is a compile error pointing at the offending token (with a
+//! "did you mean" for near misses). A field named like a provided name or a constant is an error.
+//!
+//! Non-smooth points: `abs`, `min`, `max` and `if` differentiate branch-wise, and at a switch point ψ′ and
+//! ψ″ are those of the branch the condition selects: `abs(x)` at `x = 0` takes `x`'s, `min(a, b)` and
+//! `max(a, b)` at `a = b` take `a`'s, `if l < r { A } else { B }` at `l = r` takes `B`'s.
+//!
+//! At run time the same text becomes a [`psi::runtime::RuntimePsi`] (no compiler, no rebuild): it
+//! implements [`psi::HingePsi`] like a derived energy and gives bitwise the same values.
+//!
+//! ```
+//! use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+//! use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
+//! use hinge_core::grid;
+//!
+//! let psi = RuntimePsi::new(
+//!     "k * a * if theta < theta_bar { (theta - theta_bar).powi(2) } else { 2.0 * (theta - theta_bar).powi(2) }",
+//!     [("k", ParamValue::Scalar(1.0))],
+//! )
+//! .unwrap();
+//! let rest = grid::unit_grid(8).unwrap();
+//! let model = BendingModel::new(&rest, psi).unwrap();
+//! let e = model.evaluate(&grid::wave(rest.positions()), Request::ALL, Method::Refactored, Parallelism::Sequential).unwrap();
+//! assert!(e.energy > 0.0);
+//! ```
+//!
+//! For a ψ the language cannot express, `#[psi(autodiff)]` takes an inherent method
 //! `fn psi<D: DualNum<Primitive = f64> + Copy>(&self, q: &HingeQuantities, theta: D) -> D` and obtains ψ′, ψ″
 //! with num-dual.
 //!

@@ -106,12 +106,27 @@ pub struct RuntimePsi<const N: usize = DEFAULT_CAPACITY> {
     uses_step: bool,
 }
 
-impl<const N: usize> RuntimePsi<N> {
-    /// Compiles `expr` with the named parameters.
+impl RuntimePsi {
+    /// Compiles `expr` with the named parameters, with the default capacity of
+    /// [`DEFAULT_CAPACITY`] hoisted values per hinge (see [`RuntimePsi::with_capacity`] for others).
     ///
     /// # Errors
     /// [`RuntimePsiError`]: parse errors (with columns), unused parameters, too many hoisted values.
     pub fn new<S: Into<String>>(
+        expr: &str,
+        params: impl IntoIterator<Item = (S, ParamValue)>,
+    ) -> Result<Self, RuntimePsiError> {
+        Self::with_capacity(expr, params)
+    }
+}
+
+impl<const N: usize> RuntimePsi<N> {
+    /// Compiles `expr` with the named parameters for a capacity of `N` hoisted values per hinge
+    /// (`RuntimePsi::<32>::with_capacity(…)`).
+    ///
+    /// # Errors
+    /// [`RuntimePsiError`]: parse errors (with columns), unused parameters, more than `N` hoisted values.
+    pub fn with_capacity<S: Into<String>>(
         expr: &str,
         params: impl IntoIterator<Item = (S, ParamValue)>,
     ) -> Result<Self, RuntimePsiError> {
