@@ -206,6 +206,9 @@ impl Scalar for f64 {
 pub struct Program {
     n_inputs: usize,
     consts: Vec<f64>,
+    /// The register file as a call starts it: the constants in place, zeros elsewhere (as long as the
+    /// register tier, so that the copy has a length known at compile time).
+    template: Vec<f64>,
     code: Vec<Instr>,
     outputs: Vec<u16>,
     n_regs: usize,
@@ -218,6 +221,19 @@ impl Program {
     /// Compiles the nodes `order` (operands first) computing `outputs`, reading the nodes of `inputs` from
     /// registers `0..inputs.len()`. `None` when the program needs more than [`MAX_REGISTERS`] registers.
     pub fn new(arena: &Arena, inputs: &[Id], order: &[Id], outputs: &[Id]) -> Option<Self> {
+        Self::with_input_slots(arena, inputs, inputs.len(), order, outputs)
+    }
+
+    /// [`Program::new`] with registers `0..slots` reserved for inputs (`slots ≥ inputs.len()`), so that a
+    /// caller may load a fixed-size block of them.
+    pub fn with_input_slots(
+        arena: &Arena,
+        inputs: &[Id],
+        slots: usize,
+        order: &[Id],
+        outputs: &[Id],
+    ) -> Option<Self> {
+        let slots = slots.max(inputs.len());
         let mut reg: HashMap<Id, u16> = HashMap::new();
         for (k, &id) in inputs.iter().enumerate() {
             reg.insert(id, u16::try_from(k).ok()?);
@@ -226,7 +242,7 @@ impl Program {
         let mut consts = Vec::new();
         let const_of = |id: Id, reg: &mut HashMap<Id, u16>, consts: &mut Vec<f64>| -> Option<()> {
             if let (None, Some(c)) = (reg.get(&id), arena.as_const(id)) {
-                reg.insert(id, u16::try_from(inputs.len() + consts.len()).ok()?);
+                reg.insert(id, u16::try_from(slots + consts.len()).ok()?);
                 consts.push(c);
             }
             Some(())
@@ -239,7 +255,7 @@ impl Program {
         for &o in outputs {
             const_of(o, &mut reg, &mut consts)?;
         }
-        let fixed = inputs.len() + consts.len();
+        let fixed = slots + consts.len();
         // Last use of every node's value (outputs live to the end).
         let mut last: HashMap<Id, usize> = HashMap::new();
         for (t, &id) in order.iter().enumerate() {
@@ -307,9 +323,15 @@ impl Program {
             .iter()
             .map(|o| reg.get(o).copied())
             .collect::<Option<Vec<u16>>>()?;
-        (n_regs <= MAX_REGISTERS).then_some(Self {
-            n_inputs: inputs.len(),
+        if n_regs > MAX_REGISTERS {
+            return None;
+        }
+        let mut template = vec![0.0; tier(n_regs)];
+        template[slots..slots + consts.len()].copy_from_slice(&consts);
+        Some(Self {
+            n_inputs: slots,
             consts,
+            template,
             code,
             outputs,
             n_regs,
@@ -335,66 +357,94 @@ impl Program {
     /// (as many as it has). No allocation: the register file lives on the stack.
     #[inline]
     pub fn run<T: Scalar>(&self, inputs: &[T], out: &mut [T]) {
-        self.dispatch(None, inputs, out);
+        match tier(self.n_regs) {
+            8 => self.run_with::<T, 8, 0>(None, inputs, &[], out),
+            16 => self.run_with::<T, 16, 0>(None, inputs, &[], out),
+            32 => self.run_with::<T, 32, 0>(None, inputs, &[], out),
+            64 => self.run_with::<T, 64, 0>(None, inputs, &[], out),
+            256 => self.run_with::<T, 256, 0>(None, inputs, &[], out),
+            _ => self.run_with::<T, MAX_REGISTERS, 0>(None, inputs, &[], out),
+        }
     }
 
-    /// Runs a θ program of a [`Tape`]: register 0 is `theta`, the next ones the hoisted `params` (at least
-    /// as many as the program reads).
+    /// Runs a θ program of a [`Tape`] compiled for `P` parameter slots: register 0 is `theta`, registers
+    /// `1..=P` the hoisted `params` (a fixed-size block).
     #[inline]
-    pub fn run_theta<T: Scalar>(&self, theta: T, params: &[T], out: &mut [T]) {
-        self.dispatch(Some(theta), params, out);
-    }
-
-    #[inline]
-    fn dispatch<T: Scalar>(&self, theta: Option<T>, inputs: &[T], out: &mut [T]) {
-        match self.n_regs {
-            0..=16 => self.run_with::<T, 16>(theta, inputs, out),
-            17..=32 => self.run_with::<T, 32>(theta, inputs, out),
-            33..=64 => self.run_with::<T, 64>(theta, inputs, out),
-            65..=256 => self.run_with::<T, 256>(theta, inputs, out),
-            _ => self.run_with::<T, MAX_REGISTERS>(theta, inputs, out),
+    pub fn run_theta<T: Scalar, const P: usize>(&self, theta: T, params: &[T; P], out: &mut [T]) {
+        match tier(self.n_regs) {
+            8 => self.run_with::<T, 8, P>(Some(theta), &[], params, out),
+            16 => self.run_with::<T, 16, P>(Some(theta), &[], params, out),
+            32 => self.run_with::<T, 32, P>(Some(theta), &[], params, out),
+            64 => self.run_with::<T, 64, P>(Some(theta), &[], params, out),
+            256 => self.run_with::<T, 256, P>(Some(theta), &[], params, out),
+            _ => self.run_with::<T, MAX_REGISTERS, P>(Some(theta), &[], params, out),
         }
     }
 
     #[inline]
-    fn run_with<T: Scalar, const R: usize>(&self, theta: Option<T>, inputs: &[T], out: &mut [T]) {
-        let mut r = [T::from_f64(0.0); R];
-        let n = self.n_inputs;
+    fn run_with<T: Scalar, const R: usize, const P: usize>(
+        &self,
+        theta: Option<T>,
+        inputs: &[T],
+        params: &[T; P],
+        out: &mut [T],
+    ) {
+        // One pass over the register file: the template (constants), then the inputs over it.
+        let template = &self.template[..R];
+        let mut r: [T; R] = std::array::from_fn(|i| T::from_f64(template[i]));
         match theta {
-            Some(t) if n > 0 => {
+            // A θ program: the fixed block [θ, p_0, …, p_{P−1}] (its register count is at least 1 + P).
+            Some(t) if P < R => {
                 r[0] = t;
-                r[1..n].copy_from_slice(&inputs[..n - 1]);
+                r[1..=P].copy_from_slice(params);
             }
-            _ => r[..n].copy_from_slice(&inputs[..n]),
+            Some(_) => return,
+            None => {
+                let n = self.n_inputs;
+                r[..n].copy_from_slice(&inputs[..n]);
+            }
         }
-        for (slot, &c) in r[n..n + self.consts.len()].iter_mut().zip(&self.consts) {
-            *slot = T::from_f64(c);
-        }
+        // R is a power of two and every register index is below it: masking lets the compiler drop the
+        // bounds checks without `unsafe`.
+        let m = R - 1;
+        let at = |i: u16| usize::from(i) & m;
         for ins in &self.code {
-            let [a, b, c, d] = ins.args.map(usize::from);
+            let [a, b, c, d] = ins.args;
             let v = match ins.op {
-                Op::Add => r[a] + r[b],
-                Op::Sub => r[a] - r[b],
-                Op::Mul | Op::Square => r[a] * r[b],
-                Op::Div => r[a] / r[b],
-                Op::Neg => -r[a],
-                Op::Powi(k) => r[a].powi(k),
-                Op::Powf => r[a].powf(r[b]),
-                Op::Call(f) => r[a].func(f),
-                Op::Atan2 => r[a].atan2(r[b]),
+                Op::Add => r[at(a)] + r[at(b)],
+                Op::Sub => r[at(a)] - r[at(b)],
+                Op::Mul | Op::Square => r[at(a)] * r[at(b)],
+                Op::Div => r[at(a)] / r[at(b)],
+                Op::Neg => -r[at(a)],
+                Op::Powi(k) => r[at(a)].powi(k),
+                Op::Powf => r[at(a)].powf(r[at(b)]),
+                Op::Call(f) => r[at(a)].func(f),
+                Op::Atan2 => r[at(a)].atan2(r[at(b)]),
                 Op::Select(cmp) => {
-                    if cmp.holds(r[a].re(), r[b].re()) {
-                        r[c]
+                    if cmp.holds(r[at(a)].re(), r[at(b)].re()) {
+                        r[at(c)]
                     } else {
-                        r[d]
+                        r[at(d)]
                     }
                 }
             };
-            r[usize::from(ins.dst)] = v;
+            r[at(ins.dst)] = v;
         }
         for (o, &k) in out.iter_mut().zip(&self.outputs) {
             *o = r[usize::from(k)];
         }
+    }
+}
+
+/// The register-file size a program of `n` registers runs with (a power of two).
+fn tier(n: usize) -> usize {
+    match n {
+        0..=8 => 8,
+        9..=16 => 16,
+        17..=32 => 32,
+        33..=64 => 64,
+        65..=256 => 256,
+        _ => MAX_REGISTERS,
     }
 }
 
@@ -430,8 +480,9 @@ pub struct Tape {
 }
 
 impl Tape {
-    /// Compiles `c`. `None` when a program needs more than [`MAX_REGISTERS`] registers.
-    pub fn new(c: &Compiled) -> Option<Self> {
+    /// Compiles `c` for a caller that passes `slots` (≥ the hoisted count) parameter values to every θ
+    /// program. `None` when a program needs more than [`MAX_REGISTERS`] registers.
+    pub fn new(c: &Compiled, slots: usize) -> Option<Self> {
         let a = &c.arena;
         // Vars that do not occur get no node; map positions so register i holds var i.
         let mut var_ids = Vec::with_capacity(c.n_vars());
@@ -454,9 +505,10 @@ impl Tape {
         let mut inputs = vec![theta];
         inputs.extend_from_slice(&c.hoisted);
         let [psi, d1, d2] = c.roots;
-        let value = Program::new(a, &inputs, &c.order_for(&[psi]), &[psi])?;
-        let first = Program::new(a, &inputs, &c.order_for(&[psi, d1]), &[psi, d1])?;
-        let full = Program::new(a, &inputs, &c.order, &[psi, d1, d2])?;
+        let s = 1 + slots;
+        let value = Program::with_input_slots(a, &inputs, s, &c.order_for(&[psi]), &[psi])?;
+        let first = Program::with_input_slots(a, &inputs, s, &c.order_for(&[psi, d1]), &[psi, d1])?;
+        let full = Program::with_input_slots(a, &inputs, s, &c.order, &[psi, d1, d2])?;
         Some(Self {
             params,
             value,

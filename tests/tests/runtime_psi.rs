@@ -469,8 +469,9 @@ fn errors_name_the_column_and_the_problem() {
     assert!(
         matches!(
             e,
+            // a, θ̄, and ψ″ = 2θ̄ (θ-free, hoisted as it is).
             Err(RuntimePsiError::TooManyHoisted {
-                count: 2,
+                count: 3,
                 capacity: 1
             })
         ),

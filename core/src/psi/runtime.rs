@@ -145,7 +145,7 @@ impl<const N: usize> RuntimePsi<N> {
                 capacity: N,
             });
         }
-        let tape = Tape::new(c).ok_or(RuntimePsiError::TooLarge)?;
+        let tape = Tape::new(c, N).ok_or(RuntimePsiError::TooLarge)?;
         Ok(Self {
             source: expr.to_string(),
             names,
