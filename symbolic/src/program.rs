@@ -200,6 +200,37 @@ impl Scalar for f64 {
     }
 }
 
+/// The instruction loop on a register file `$r`, every index masked by `$mask` (for an array of
+/// power-of-two length `R`, `R − 1` lets the compiler drop the bounds checks).
+macro_rules! exec_loop {
+    ($code:expr, $r:ident, $mask:expr) => {{
+        let mask = $mask;
+        let at = |i: u16| usize::from(i) & mask;
+        for ins in $code {
+            let [a, b, c, d] = ins.args;
+            let v = match ins.op {
+                Op::Add => $r[at(a)] + $r[at(b)],
+                Op::Sub => $r[at(a)] - $r[at(b)],
+                Op::Mul | Op::Square => $r[at(a)] * $r[at(b)],
+                Op::Div => $r[at(a)] / $r[at(b)],
+                Op::Neg => -$r[at(a)],
+                Op::Powi(k) => $r[at(a)].powi(k),
+                Op::Powf => $r[at(a)].powf($r[at(b)]),
+                Op::Call(f) => $r[at(a)].func(f),
+                Op::Atan2 => $r[at(a)].atan2($r[at(b)]),
+                Op::Select(cmp) => {
+                    if cmp.holds($r[at(a)].re(), $r[at(b)].re()) {
+                        $r[at(c)]
+                    } else {
+                        $r[at(d)]
+                    }
+                }
+            };
+            $r[at(ins.dst)] = v;
+        }
+    }};
+}
+
 /// A straight-line register program. Registers `0..n_inputs` are loaded by the caller, then come the
 /// constants, then temporaries (reused once their value is dead).
 #[derive(Clone, Debug, PartialEq)]
@@ -362,8 +393,7 @@ impl Program {
             16 => self.run_with::<T, 16, 0>(None, inputs, &[], out),
             32 => self.run_with::<T, 32, 0>(None, inputs, &[], out),
             64 => self.run_with::<T, 64, 0>(None, inputs, &[], out),
-            256 => self.run_with::<T, 256, 0>(None, inputs, &[], out),
-            _ => self.run_with::<T, MAX_REGISTERS, 0>(None, inputs, &[], out),
+            _ => self.run_large(None, inputs, out),
         }
     }
 
@@ -376,8 +406,7 @@ impl Program {
             16 => self.run_with::<T, 16, P>(Some(theta), &[], params, out),
             32 => self.run_with::<T, 32, P>(Some(theta), &[], params, out),
             64 => self.run_with::<T, 64, P>(Some(theta), &[], params, out),
-            256 => self.run_with::<T, 256, P>(Some(theta), &[], params, out),
-            _ => self.run_with::<T, MAX_REGISTERS, P>(Some(theta), &[], params, out),
+            _ => self.run_large(Some(theta), params, out),
         }
     }
 
@@ -406,30 +435,28 @@ impl Program {
         }
         // R is a power of two and every register index is below it: masking lets the compiler drop the
         // bounds checks without `unsafe`.
-        let m = R - 1;
-        let at = |i: u16| usize::from(i) & m;
-        for ins in &self.code {
-            let [a, b, c, d] = ins.args;
-            let v = match ins.op {
-                Op::Add => r[at(a)] + r[at(b)],
-                Op::Sub => r[at(a)] - r[at(b)],
-                Op::Mul | Op::Square => r[at(a)] * r[at(b)],
-                Op::Div => r[at(a)] / r[at(b)],
-                Op::Neg => -r[at(a)],
-                Op::Powi(k) => r[at(a)].powi(k),
-                Op::Powf => r[at(a)].powf(r[at(b)]),
-                Op::Call(f) => r[at(a)].func(f),
-                Op::Atan2 => r[at(a)].atan2(r[at(b)]),
-                Op::Select(cmp) => {
-                    if cmp.holds(r[at(a)].re(), r[at(b)].re()) {
-                        r[at(c)]
-                    } else {
-                        r[at(d)]
-                    }
-                }
-            };
-            r[at(ins.dst)] = v;
+        exec_loop!(&self.code, r, R - 1);
+        for (o, &k) in out.iter_mut().zip(&self.outputs) {
+            *o = r[usize::from(k)];
         }
+    }
+
+    /// Programs of more than 64 registers: the register file on the heap (one allocation per call; a
+    /// stack array of 1024 dual numbers would not fit a thread's stack), never inlined.
+    #[inline(never)]
+    fn run_large<T: Scalar>(&self, theta: Option<T>, inputs: &[T], out: &mut [T]) {
+        let mut r: Vec<T> = self.template.iter().map(|&c| T::from_f64(c)).collect();
+        match theta {
+            Some(t) => {
+                r[0] = t;
+                r[1..=inputs.len()].copy_from_slice(inputs);
+            }
+            None => {
+                let n = self.n_inputs;
+                r[..n].copy_from_slice(&inputs[..n]);
+            }
+        }
+        exec_loop!(&self.code, r, usize::MAX);
         for (o, &k) in out.iter_mut().zip(&self.outputs) {
             *o = r[usize::from(k)];
         }

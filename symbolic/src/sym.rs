@@ -293,6 +293,25 @@ impl Arena {
             let c = self.constant(c1 * c2);
             return self.mul(c, q);
         }
+        // Constant factors to the front, where they merge: (c·x)·y = c·(x·y), x·(c·y) = c·(x·y). Both
+        // back ends evaluate the result, so they stay bitwise equal; the derivatives of products of
+        // scaled factors (2 tan(θ/2)…) lose a multiplication per factor.
+        if self.as_const(a).is_none() && self.as_const(b).is_none() {
+            if let Node::Mul(p, x) = self.node(a)
+                && let Some(c) = self.as_const(p)
+            {
+                let m = self.mul(x, b);
+                let cc = self.constant(c);
+                return self.mul(cc, m);
+            }
+            if let Node::Mul(p, y) = self.node(b)
+                && let Some(c) = self.as_const(p)
+            {
+                let m = self.mul(a, y);
+                let cc = self.constant(c);
+                return self.mul(cc, m);
+            }
+        }
         if let Node::Neg(na) = self.node(a) {
             let m = self.mul(na, b);
             return self.neg(m);
