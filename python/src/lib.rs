@@ -1,0 +1,472 @@
+//! The `hinge` Python module's native part (`hinge._hinge`): bending models on numpy meshes, evaluated with
+//! the GIL released. The pure-Python layer (`python/hinge/__init__.py`) converts dtypes and layouts (without
+//! copying when they already fit) and builds the scipy matrix.
+//!
+//! Every error of the library becomes a `ValueError` with its message; nothing panics across the boundary
+//! (no `unwrap` on user data here either).
+
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::export::CsrLayout;
+use hinge_core::layout::Positions;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_core::{TriMesh, topology};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// The built-in hinge energies: name, ψ in the derive's language (the text of their `#[psi(…)]`), the
+/// parameters with their defaults.
+type EnergyEntry = (&'static str, &'static str, &'static [(&'static str, f64)]);
+
+const ENERGIES: [EnergyEntry; 5] = [
+    (
+        "discrete-shells",
+        "k * a * (theta - theta_bar).powi(2)",
+        &[("k", 1.0)],
+    ),
+    (
+        "tan-bending",
+        "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)",
+        &[("k", 1.0)],
+    ),
+    (
+        "willmore",
+        "k * a * (2.0 * (theta / 2.0).sin() - 2.0 * (theta_bar / 2.0).sin()).powi(2)",
+        &[("k", 1.0)],
+    ),
+    (
+        "bridson",
+        "k * a * (2.0 * (theta_bar / 2.0).cos() - 2.0 * (theta / 2.0).cos() - (theta - theta_bar) * (theta_bar / 2.0).sin())",
+        &[("k", 1.0)],
+    ),
+    (
+        "viscous-damping",
+        "kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2)",
+        &[("kd", 1.0)],
+    ),
+];
+
+fn value_error(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// A model with the capacity its expression needs.
+enum Inner {
+    Small(BendingModel<RuntimePsi>),
+    Large(BendingModel<RuntimePsi<32>>),
+}
+
+macro_rules! with_model {
+    ($inner:expr, $m:ident => $body:expr) => {
+        match $inner {
+            Inner::Small($m) => $body,
+            Inner::Large($m) => $body,
+        }
+    };
+}
+
+/// A hinge energy bound to a rest mesh.
+#[pyclass(module = "hinge._hinge", name = "BendingModel")]
+struct Model {
+    inner: Inner,
+    method: Method,
+    pool: Option<rayon::ThreadPool>,
+    csr: CsrLayout,
+    n_vertices: usize,
+    hinges: Vec<[usize; 4]>,
+    energy: String,
+}
+
+fn mesh_from(v: &PyReadonlyArray2<'_, f64>, f: &PyReadonlyArray2<'_, i64>) -> PyResult<TriMesh> {
+    let (vs, fs) = (v.shape(), f.shape());
+    if vs.len() != 2 || vs[1] != 3 {
+        return Err(value_error(format!("V must have shape (n, 3), got {vs:?}")));
+    }
+    if fs.len() != 2 || fs[1] != 3 {
+        return Err(value_error(format!("F must have shape (m, 3), got {fs:?}")));
+    }
+    let pos = v.as_slice().map_err(value_error)?;
+    let tri = f.as_slice().map_err(value_error)?;
+    let mut tris = Vec::with_capacity(fs[0]);
+    for (t, c) in tri.chunks_exact(3).enumerate() {
+        let mut out = [0usize; 3];
+        for k in 0..3 {
+            out[k] = usize::try_from(c[k]).map_err(|_| {
+                value_error(format!(
+                    "face {t} has a negative vertex index {} (vertex indices count from 0)",
+                    c[k]
+                ))
+            })?;
+        }
+        tris.push(out);
+    }
+    let x = pos.as_vectors().map_err(value_error)?.to_vec();
+    TriMesh::new(x, tris).map_err(value_error)
+}
+
+fn param_value(name: &str, v: &Bound<'_, PyAny>) -> PyResult<ParamValue> {
+    if let Ok(x) = v.extract::<f64>() {
+        return Ok(ParamValue::Scalar(x));
+    }
+    match v.extract::<PyReadonlyArray1<'_, f64>>() {
+        Ok(a) => Ok(ParamValue::PerHinge(a.as_array().to_vec())),
+        Err(_) => Err(value_error(format!(
+            "parameter `{name}` must be a number or a 1-D float64 array with one value per hinge"
+        ))),
+    }
+}
+
+impl Model {
+    fn install<R: Send>(&self, py: Python<'_>, f: impl FnOnce() -> R + Send) -> R {
+        py.detach(|| match &self.pool {
+            Some(p) => p.install(f),
+            None => f(),
+        })
+    }
+}
+
+#[pymethods]
+impl Model {
+    /// `BendingModel(V, F, energy=None, psi=None, method="refactored", threads=None, params={})`.
+    #[new]
+    #[pyo3(signature = (v, f, energy=None, psi=None, method="refactored", threads=None, params=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        v: PyReadonlyArray2<'_, f64>,
+        f: PyReadonlyArray2<'_, i64>,
+        energy: Option<&str>,
+        psi: Option<&str>,
+        method: &str,
+        threads: Option<usize>,
+        params: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let method = Method::from_name(method).ok_or_else(|| {
+            value_error(format!(
+                "unknown method `{method}` (refactored, per_hinge, autodiff)"
+            ))
+        })?;
+        let mut given: Vec<(String, ParamValue)> = Vec::new();
+        if let Some(d) = params {
+            for (k, v) in d.iter() {
+                let name: String = k.extract()?;
+                given.push((name.clone(), param_value(&name, &v)?));
+            }
+        }
+        let (label, text, values) = match (energy, psi) {
+            (Some(_), Some(_)) => {
+                return Err(value_error("give one of `energy` and `psi`, not both"));
+            }
+            (None, Some(expr)) => ("custom".to_string(), expr.to_string(), given),
+            (e, None) => {
+                let e = e.unwrap_or("discrete-shells");
+                let Some((name, text, defaults)) = ENERGIES.iter().find(|x| x.0 == e) else {
+                    let known: Vec<&str> = ENERGIES.iter().map(|x| x.0).collect();
+                    return Err(value_error(format!(
+                        "unknown energy `{e}` (known: {})",
+                        known.join(", ")
+                    )));
+                };
+                let mut values: Vec<(String, ParamValue)> = defaults
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), ParamValue::Scalar(*v)))
+                    .collect();
+                for (k, v) in given {
+                    match values.iter_mut().find(|(n, _)| *n == k) {
+                        Some(slot) => slot.1 = v,
+                        None => {
+                            let names: Vec<&str> = defaults.iter().map(|d| d.0).collect();
+                            return Err(value_error(format!(
+                                "energy `{name}` has no parameter `{k}` (it has: {})",
+                                names.join(", ")
+                            )));
+                        }
+                    }
+                }
+                (name.to_string(), text.to_string(), values)
+            }
+        };
+        let pool = match threads {
+            Some(0) => return Err(value_error("threads must be at least 1")),
+            Some(n) if n > 1024 => {
+                return Err(value_error(format!("threads = {n}: at most 1024")));
+            }
+            Some(n) => Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(n)
+                    .build()
+                    .map_err(value_error)?,
+            ),
+            None => None,
+        };
+        let mesh = mesh_from(&v, &f)?;
+        let inner = py.detach(|| -> Result<Inner, String> {
+            let e = |e: hinge_core::EvalError| e.to_string();
+            Ok(match RuntimePsi::new(&text, values.clone()) {
+                Ok(p) => Inner::Small(BendingModel::new(&mesh, p).map_err(e)?),
+                Err(RuntimePsiError::TooManyHoisted { .. }) => Inner::Large(
+                    BendingModel::new(
+                        &mesh,
+                        RuntimePsi::<32>::with_capacity(&text, values)
+                            .map_err(|e| e.to_string())?,
+                    )
+                    .map_err(e)?,
+                ),
+                Err(err) => return Err(err.to_string()),
+            })
+        });
+        let inner = inner.map_err(value_error)?;
+        let (csr, hinges) = with_model!(&inner, m => (
+            CsrLayout::new(m.pattern()),
+            m.topology().hinges().iter().map(|h| h.vertices).collect::<Vec<_>>(),
+        ));
+        Ok(Self {
+            inner,
+            method,
+            pool,
+            csr,
+            n_vertices: mesh.n_vertices(),
+            hinges,
+            energy: label,
+        })
+    }
+
+    /// The stencil vertices `(x0, x1, x2, x3)` of every hinge, in hinge order (the order per-hinge parameter
+    /// arrays follow): an (h, 4) int64 array.
+    #[getter]
+    fn hinges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<i64>>> {
+        let rows: Vec<Vec<i64>> = self
+            .hinges
+            .iter()
+            .map(|h| h.iter().map(|&v| v as i64).collect())
+            .collect();
+        PyArray2::from_vec2(py, &rows).map_err(value_error)
+    }
+
+    /// Number of vertices of the rest mesh.
+    #[getter]
+    fn n_vertices(&self) -> usize {
+        self.n_vertices
+    }
+
+    /// Number of hinges (interior edges).
+    #[getter]
+    fn n_hinges(&self) -> usize {
+        self.hinges.len()
+    }
+
+    /// The energy's name (`custom` for a ψ string).
+    #[getter]
+    fn energy(&self) -> &str {
+        &self.energy
+    }
+
+    /// The full symmetric CSR structure of the Hessian: `(indptr, indices)` (int64), fixed for the model.
+    fn pattern<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>) {
+        let p: Vec<i64> = self.csr.row_ptr().iter().map(|&x| x as i64).collect();
+        let c: Vec<i64> = self.csr.col_idx().iter().map(|&x| x as i64).collect();
+        (p.into_pyarray(py), c.into_pyarray(py))
+    }
+
+    /// Number of stored values of the full CSR Hessian.
+    #[getter]
+    fn nnz(&self) -> usize {
+        self.csr.nnz()
+    }
+
+    /// `(E, g, data)` at positions `x` ((n, 3) float64, C order): `data` the CSR values in `pattern()` order
+    /// (None without `hessian`), `g` of length 3n (None without `gradient`).
+    #[pyo3(signature = (x, gradient=true, hessian=true))]
+    #[allow(clippy::type_complexity)]
+    fn evaluate_raw<'py>(
+        &self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+        gradient: bool,
+        hessian: bool,
+    ) -> PyResult<(
+        f64,
+        Option<Bound<'py, PyArray1<f64>>>,
+        Option<Bound<'py, PyArray1<f64>>>,
+    )> {
+        let pos = self.positions(&x)?;
+        let request = Request {
+            value: true,
+            gradient,
+            hessian,
+            definite: false,
+        };
+        let method = self.method;
+        let nnz = self.csr.nnz();
+        let result = self.install(py, || -> Result<(f64, Vec<f64>, Vec<f64>), String> {
+            let e = with_model!(&self.inner, m => m
+                .evaluate(pos, request, method, Parallelism::Rayon)
+                .map_err(|e| e.to_string())?);
+            let mut data = Vec::new();
+            if hessian {
+                data = vec![0.0; nnz];
+                self.csr
+                    .scatter(&e.hessian, &mut data)
+                    .map_err(|e| e.to_string())?;
+            }
+            Ok((
+                e.energy,
+                if gradient { e.gradient } else { Vec::new() },
+                data,
+            ))
+        });
+        let (energy, g, data) = result.map_err(value_error)?;
+        Ok((
+            energy,
+            gradient.then(|| g.into_pyarray(py)),
+            hessian.then(|| data.into_pyarray(py)),
+        ))
+    }
+
+    /// Evaluates into caller arrays (no allocation of outputs): `g_out` float64 of length 3n, `data_out`
+    /// float64 of length `nnz` (or None to skip the Hessian). Returns E.
+    #[pyo3(signature = (x, g_out, data_out=None))]
+    fn evaluate_into(
+        &self,
+        py: Python<'_>,
+        x: PyReadonlyArray2<'_, f64>,
+        mut g_out: PyReadwriteArray1<'_, f64>,
+        data_out: Option<PyReadwriteArray1<'_, f64>>,
+    ) -> PyResult<f64> {
+        let pos = self.positions(&x)?;
+        let g = g_out.as_slice_mut().map_err(value_error)?;
+        if g.len() != 3 * self.n_vertices {
+            return Err(value_error(format!(
+                "g_out has {} entries, need 3n = {}",
+                g.len(),
+                3 * self.n_vertices
+            )));
+        }
+        let mut data_out = data_out;
+        let data = match data_out.as_mut() {
+            Some(d) => {
+                let s = d.as_slice_mut().map_err(value_error)?;
+                if s.len() != self.csr.nnz() {
+                    return Err(value_error(format!(
+                        "data_out has {} entries, need nnz = {}",
+                        s.len(),
+                        self.csr.nnz()
+                    )));
+                }
+                Some(s)
+            }
+            None => None,
+        };
+        let request = Request {
+            value: true,
+            gradient: true,
+            hessian: data.is_some(),
+            definite: false,
+        };
+        let method = self.method;
+        let r = self.install(py, move || -> Result<f64, String> {
+            let e = with_model!(&self.inner, m => m
+                .evaluate(pos, request, method, Parallelism::Rayon)
+                .map_err(|e| e.to_string())?);
+            g.copy_from_slice(&e.gradient);
+            if let Some(d) = data {
+                self.csr.scatter(&e.hessian, d).map_err(|e| e.to_string())?;
+            }
+            Ok(e.energy)
+        });
+        r.map_err(value_error)
+    }
+
+    /// Starts a time step for energies that use `theta_prev` and `dt` (viscous damping): θ at the end of the
+    /// previous step from `x_prev`, and the step `dt`.
+    fn set_step(&mut self, x_prev: PyReadonlyArray2<'_, f64>, dt: f64) -> PyResult<()> {
+        let pos = self.positions(&x_prev)?;
+        with_model!(&mut self.inner, m => m.set_step(pos, dt)).map_err(value_error)
+    }
+
+    /// Sets a parameter after set-up (a number, or one value per hinge) and re-hoists.
+    fn set_parameter(&mut self, name: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
+        let v = param_value(name, value)?;
+        let mut err = None;
+        let r = with_model!(&mut self.inner, m => m.update_psi(|p| {
+            if let Err(e) = p.set_parameter(name, v.clone()) {
+                err = Some(e);
+            }
+        }));
+        if let Some(e) = err {
+            return Err(value_error(e));
+        }
+        r.map_err(value_error)
+    }
+
+    /// Sets the rest angle θ̄ of every hinge (hinge order).
+    fn set_rest_angles(&mut self, theta_bar: PyReadonlyArray1<'_, f64>) -> PyResult<()> {
+        let t = theta_bar.as_array().to_vec();
+        with_model!(&mut self.inner, m => m.set_rest_angles(&t)).map_err(value_error)
+    }
+}
+
+impl Model {
+    fn positions<'a>(&self, x: &'a PyReadonlyArray2<'_, f64>) -> PyResult<&'a [nalgebra_vec::V3]> {
+        let s = x.shape();
+        if s.len() != 2 || s[1] != 3 || s[0] != self.n_vertices {
+            return Err(value_error(format!(
+                "positions must have shape ({}, 3), got {s:?}",
+                self.n_vertices
+            )));
+        }
+        let flat = x.as_slice().map_err(value_error)?;
+        flat.as_vectors().map_err(value_error)
+    }
+}
+
+mod nalgebra_vec {
+    /// A vertex position.
+    pub type V3 = hinge_core::nalgebra::Vector3<f64>;
+}
+
+/// The hinges of a mesh before any model is built: an (h, 4) int64 array of stencil vertices, hinge order.
+#[pyfunction]
+fn hinges<'py>(
+    py: Python<'py>,
+    v: PyReadonlyArray2<'py, f64>,
+    f: PyReadonlyArray2<'py, i64>,
+) -> PyResult<Bound<'py, PyArray2<i64>>> {
+    let mesh = mesh_from(&v, &f)?;
+    let h = topology::hinges(&mesh).map_err(value_error)?;
+    let rows: Vec<Vec<i64>> = h
+        .iter()
+        .map(|h| h.vertices.iter().map(|&v| v as i64).collect())
+        .collect();
+    PyArray2::from_vec2(py, &rows).map_err(value_error)
+}
+
+/// The built-in energies: a list of (name, ψ text, {parameter: default}).
+#[pyfunction]
+fn energies(py: Python<'_>) -> PyResult<Vec<(String, String, Py<PyDict>)>> {
+    ENERGIES
+        .iter()
+        .map(|(n, t, p)| {
+            let d = PyDict::new(py);
+            for (k, v) in p.iter() {
+                d.set_item(k, v)?;
+            }
+            Ok((n.to_string(), t.to_string(), d.unbind()))
+        })
+        .collect()
+}
+
+#[pymodule]
+fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Model>()?;
+    m.add_function(wrap_pyfunction!(hinges, m)?)?;
+    m.add_function(wrap_pyfunction!(energies, m)?)?;
+    Ok(())
+}

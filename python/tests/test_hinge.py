@@ -1,0 +1,232 @@
+"""The Python face of hinge: derivatives against finite differences, methods and ψ strings against each
+other, numpy dtypes and layouts, per-hinge parameters, threads, the GIL, and ValueError for bad input."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import hinge
+
+
+def sheet(nx, ny, seed, jitter=0.2):
+    """An irregular sheet: random diagonals, jittered positions, random numbering and corner rotations."""
+    rng = np.random.default_rng(seed)
+    xs, ys = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), indexing="ij")
+    V = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1).astype(float) / max(nx, ny)
+    V[:, :2] += rng.uniform(-jitter, jitter, size=(V.shape[0], 2)) / max(nx, ny)
+    idx = lambda i, j: i * (ny + 1) + j
+    F = []
+    for i in range(nx):
+        for j in range(ny):
+            a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
+            if rng.random() < 0.5:
+                F += [[a, b, c], [a, c, d]]
+            else:
+                F += [[a, b, d], [b, c, d]]
+    F = np.array(F)
+    F = np.array([np.roll(f, rng.integers(3)) for f in F])
+    perm = rng.permutation(V.shape[0])
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    return V[perm], inv[F]
+
+
+def bent(V, seed, amp=0.05):
+    rng = np.random.default_rng(seed)
+    X = V.copy()
+    X[:, 2] += 0.3 * np.sin(3.0 * V[:, 0]) * np.cos(2.0 * V[:, 1])
+    return X + rng.uniform(-amp, amp, size=V.shape) * 0.1
+
+
+@pytest.mark.parametrize("energy", ["discrete-shells", "tan-bending", "willmore", "bridson"])
+def test_gradient_and_hessian_match_finite_differences(energy):
+    V, F = sheet(5, 4, 1)
+    X = bent(V, 2)
+    m = hinge.BendingModel(V, F, energy=energy, k=1.3)
+    E, g, H = m.evaluate(X)
+    assert isinstance(H, sp.csr_matrix) and H.shape == (3 * len(V), 3 * len(V))
+    assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
+    h = 1e-6
+    fd_g = np.zeros_like(g)
+    fd_H = np.zeros((g.size, g.size))
+    for i in range(g.size):
+        Xp, Xm = X.copy(), X.copy()
+        Xp.flat[i] += h
+        Xm.flat[i] -= h
+        (ep, gp), (em, gm) = m.evaluate(Xp, hessian=False), m.evaluate(Xm, hessian=False)
+        fd_g[i] = (ep - em) / (2 * h)
+        fd_H[i] = (gp - gm) / (2 * h)
+    assert np.abs(g - fd_g).max() <= 1e-6 * max(1.0, np.abs(g).max())
+    assert np.abs(H.toarray() - fd_H).max() <= 1e-5 * max(1.0, np.abs(fd_H).max())
+
+
+def test_methods_agree_and_psi_strings_equal_the_builtins_bitwise():
+    V, F = sheet(6, 6, 3)
+    X = bent(V, 4)
+    ref = hinge.BendingModel(V, F, energy="tan-bending", k=0.7)
+    E, g, H = ref.evaluate(X)
+    for method in ["per_hinge", "autodiff"]:
+        E2, g2, H2 = hinge.BendingModel(V, F, energy="tan-bending", method=method, k=0.7).evaluate(X)
+        assert abs(E - E2) <= 1e-12 * abs(E)
+        assert np.abs(g - g2).max() <= 1e-11 * np.abs(g).max()
+        assert abs(H - H2).max() <= 1e-10 * abs(H).max()
+    text = dict((n, t) for n, t, _ in hinge.energies())["tan-bending"]
+    E3, g3, H3 = hinge.BendingModel(V, F, psi=text, k=0.7).evaluate(X)
+    assert E3 == E and np.array_equal(g3, g) and np.array_equal(H3.data, H.data)
+
+
+def test_per_hinge_parameters_follow_the_hinge_order():
+    V, F = sheet(4, 5, 5)
+    X = bent(V, 6)
+    hs = hinge.hinges(V, F)
+    m = hinge.BendingModel(V, F, energy="discrete-shells", k=np.full(len(hs), 2.0))
+    assert np.array_equal(m.hinges, hs) and m.n_hinges == len(hs)
+    E, g, H = m.evaluate(X)
+    E2, g2, H2 = hinge.BendingModel(V, F, energy="discrete-shells", k=2.0).evaluate(X)
+    assert E == E2 and np.array_equal(g, g2) and np.array_equal(H.data, H2.data)
+    # Stiffness on one hinge only: the energy is that hinge's own.
+    k = np.zeros(len(hs))
+    k[3] = 1.0
+    e_one = hinge.BendingModel(V, F, energy="discrete-shells", k=k).energy_value(X)
+    Vh = V[hs[3]]
+    Xh = X[hs[3]]
+    e_alone = hinge.BendingModel(Vh, np.array([[0, 1, 2], [3, 2, 1]]), energy="discrete-shells").energy_value(Xh)
+    assert abs(e_one - e_alone) <= 1e-12 * abs(e_alone)
+
+
+def test_dtypes_and_layouts_give_the_same_numbers():
+    V, F = sheet(4, 4, 7)
+    X = bent(V, 8)
+    ref = hinge.BendingModel(V, F, energy="willmore").evaluate(X)
+    for Fv in [F.astype(np.int32), np.asfortranarray(F), F.astype(np.uint16), F.astype(np.int8)]:
+        for Vv in [V, np.asfortranarray(V)]:
+            out = hinge.BendingModel(Vv, Fv, energy="willmore").evaluate(np.asfortranarray(X))
+            assert out[0] == ref[0] and np.array_equal(out[1], ref[1])
+
+
+def test_evaluate_into_and_pattern():
+    V, F = sheet(5, 5, 9)
+    X = bent(V, 10)
+    m = hinge.BendingModel(V, F, psi="k * a * if theta < theta_bar { (theta - theta_bar).powi(2) } else { 2.0 * (theta - theta_bar).powi(2) }", k=1.1)
+    E, g, H = m.evaluate(X)
+    indptr, indices = m.pattern()
+    assert np.array_equal(indptr, H.indptr) and np.array_equal(indices, H.indices)
+    g_out, data_out = np.zeros(3 * len(V)), np.zeros(m.nnz)
+    E2 = m.evaluate_into(X, g_out, data_out)
+    assert E2 == E and np.array_equal(g_out, g) and np.array_equal(data_out, H.data)
+    assert m.evaluate_into(X, g_out) == E
+    with pytest.raises(ValueError):
+        m.evaluate_into(X, np.zeros(5), data_out)
+    with pytest.raises(ValueError):
+        m.evaluate_into(X, g_out.astype(np.float32))
+
+
+def test_threads_give_identical_bits():
+    V, F = sheet(60, 60, 11)
+    X = bent(V, 12)
+    outs = [hinge.BendingModel(V, F, energy="tan-bending", threads=t).evaluate(X) for t in (1, 2, 3)]
+    for E, g, H in outs[1:]:
+        assert E == outs[0][0] and np.array_equal(g, outs[0][1]) and np.array_equal(H.data, outs[0][2].data)
+
+
+def test_evaluation_releases_the_gil():
+    V, F = sheet(300, 300, 13, jitter=0.1)
+    X = bent(V, 14)
+    m = hinge.BendingModel(V, F, energy="tan-bending", threads=1)
+    m.evaluate(X)
+    count = [0]
+    stop = [False]
+
+    def spin():
+        while not stop[0]:
+            count[0] += 1
+
+    t = threading.Thread(target=spin)
+    t.start()
+    time.sleep(0.05)
+    c0 = count[0]
+    start = time.perf_counter()
+    m.evaluate(X)
+    m.evaluate(X)
+    elapsed = time.perf_counter() - start
+    c1 = count[0]
+    stop[0] = True
+    t.join()
+    # The other thread kept counting while the evaluations ran (it could not with the GIL held).
+    assert elapsed > 0.05 and c1 - c0 > 10_000, (elapsed, c1 - c0)
+
+
+def test_damping_step_and_parameter_updates():
+    V, F = sheet(4, 4, 15)
+    X = bent(V, 16)
+    d = hinge.BendingModel(V, F, energy="viscous-damping", kd=0.5)
+    d.set_step(X, 0.01)
+    assert d.energy_value(X) == 0.0
+    assert d.energy_value(bent(V, 17)) > 0.0
+    m = hinge.BendingModel(V, F, psi="k * a * (theta - theta_bar).powi(2)", k=1.0)
+    m.set_parameter("k", 3.0)
+    fresh = hinge.BendingModel(V, F, psi="k * a * (theta - theta_bar).powi(2)", k=3.0)
+    assert m.energy_value(X) == fresh.energy_value(X)
+    m.set_rest_angles(np.zeros(m.n_hinges))
+    flat = hinge.BendingModel(V, F, psi="k * a * theta.powi(2)", k=3.0)
+    assert m.energy_value(X) == flat.energy_value(X)
+    with pytest.raises(ValueError, match="no parameter `q`"):
+        m.set_parameter("q", 1.0)
+
+
+def bad(**kw):
+    V, F = sheet(3, 3, 18)
+    args = dict(V=V, F=F)
+    args.update(kw)
+    V, F = args.pop("V"), args.pop("F")
+    return lambda: hinge.BendingModel(V, F, **args)
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (bad(V=np.zeros((4, 2))), "shape"),
+        (bad(F=np.zeros((3, 4), int)), "shape"),
+        (bad(F=np.array([[0.0, 1.0, 2.0]])), "integer"),
+        (bad(F=np.array([[0, 1, 99]])), "99"),
+        (bad(F=np.array([[0, -1, 2]])), "negative"),
+        (bad(F=np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]])), "manifold"),
+        (bad(V=np.full((16, 3), np.nan)), "finite"),
+        (bad(energy="bending"), "unknown energy"),
+        (bad(energy="tan-bending", stiffness=1.0), "no parameter `stiffness`"),
+        (bad(energy="tan-bending", k=np.ones(3)), "hinges"),
+        (bad(energy="tan-bending", k="soft"), "number"),
+        (bad(psi="k * (theta +* 2)", k=1.0), "column 13"),
+        (bad(psi="k * tehta", k=1.0), "did you mean `theta`"),
+        (bad(psi="theta.powi(2)", k=1.0), "not used"),
+        (bad(energy="tan-bending", psi="theta"), "not both"),
+        (bad(method="fast"), "unknown method"),
+        (bad(threads=0), "threads"),
+        (bad(threads=1.5), "threads"),
+    ],
+)
+def test_bad_input_raises_value_error(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_bad_positions_raise_value_error():
+    V, F = sheet(3, 3, 19)
+    m = hinge.BendingModel(V, F)
+    with pytest.raises(ValueError, match="shape"):
+        m.evaluate(V[:-1])
+    X = V.copy()
+    X[5, 1] = np.inf
+    with pytest.raises(ValueError, match="vertex 5"):
+        m.evaluate(X)
+    with pytest.raises(ValueError):
+        m.evaluate(V.astype(str))
+    # A ψ that is not finite at some hinge: a typed error naming the hinge, not a silent NaN.
+    V2 = np.array([[0, 1, 0], [0, 0, 0], [1, 0, 0], [1, 1, 0]], float)
+    F2 = np.array([[0, 1, 2], [3, 2, 1]])
+    t = hinge.BendingModel(V2, F2, psi="k * ln(theta - 10.0)", k=1.0)
+    with pytest.raises(ValueError, match="hinge 0"):
+        t.evaluate(V2)
