@@ -5,6 +5,8 @@
 //! Every error of the library becomes a `ValueError` with its message; nothing panics across the boundary
 //! (no `unwrap` on user data here either).
 
+mod system;
+
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::export::CsrLayout;
 use hinge_core::layout::Positions;
@@ -50,8 +52,57 @@ const ENERGIES: [EnergyEntry; 5] = [
     ),
 ];
 
-fn value_error(e: impl std::fmt::Display) -> PyErr {
+pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
+}
+
+/// The (name, ψ text, parameters) of a bending term: a built-in `energy` with its defaults overridden, or a
+/// `psi` string with the parameters given.
+pub(crate) fn psi_spec(
+    energy: Option<&str>,
+    psi: Option<&str>,
+    params: Option<&Bound<'_, PyDict>>,
+) -> PyResult<(String, String, Vec<(String, ParamValue)>)> {
+    let mut given: Vec<(String, ParamValue)> = Vec::new();
+    if let Some(d) = params {
+        for (k, v) in d.iter() {
+            let name: String = k.extract()?;
+            given.push((name.clone(), param_value(&name, &v)?));
+        }
+    }
+    Ok(match (energy, psi) {
+        (Some(_), Some(_)) => {
+            return Err(value_error("give one of `energy` and `psi`, not both"));
+        }
+        (None, Some(expr)) => ("custom".to_string(), expr.to_string(), given),
+        (e, None) => {
+            let e = e.unwrap_or("discrete-shells");
+            let Some((name, text, defaults)) = ENERGIES.iter().find(|x| x.0 == e) else {
+                let known: Vec<&str> = ENERGIES.iter().map(|x| x.0).collect();
+                return Err(value_error(format!(
+                    "unknown energy `{e}` (known: {})",
+                    known.join(", ")
+                )));
+            };
+            let mut values: Vec<(String, ParamValue)> = defaults
+                .iter()
+                .map(|(k, v)| (k.to_string(), ParamValue::Scalar(*v)))
+                .collect();
+            for (k, v) in given {
+                match values.iter_mut().find(|(n, _)| *n == k) {
+                    Some(slot) => slot.1 = v,
+                    None => {
+                        let names: Vec<&str> = defaults.iter().map(|d| d.0).collect();
+                        return Err(value_error(format!(
+                            "energy `{name}` has no parameter `{k}` (it has: {})",
+                            names.join(", ")
+                        )));
+                    }
+                }
+            }
+            (name.to_string(), text.to_string(), values)
+        }
+    })
 }
 
 /// A model with the capacity its expression needs.
@@ -81,7 +132,10 @@ struct Model {
     energy: String,
 }
 
-fn mesh_from(v: &PyReadonlyArray2<'_, f64>, f: &PyReadonlyArray2<'_, i64>) -> PyResult<TriMesh> {
+pub(crate) fn mesh_from(
+    v: &PyReadonlyArray2<'_, f64>,
+    f: &PyReadonlyArray2<'_, i64>,
+) -> PyResult<TriMesh> {
     let (vs, fs) = (v.shape(), f.shape());
     if vs.len() != 2 || vs[1] != 3 {
         return Err(value_error(format!("V must have shape (n, 3), got {vs:?}")));
@@ -150,46 +204,7 @@ impl Model {
                 "unknown method `{method}` (refactored, per_hinge, autodiff)"
             ))
         })?;
-        let mut given: Vec<(String, ParamValue)> = Vec::new();
-        if let Some(d) = params {
-            for (k, v) in d.iter() {
-                let name: String = k.extract()?;
-                given.push((name.clone(), param_value(&name, &v)?));
-            }
-        }
-        let (label, text, values) = match (energy, psi) {
-            (Some(_), Some(_)) => {
-                return Err(value_error("give one of `energy` and `psi`, not both"));
-            }
-            (None, Some(expr)) => ("custom".to_string(), expr.to_string(), given),
-            (e, None) => {
-                let e = e.unwrap_or("discrete-shells");
-                let Some((name, text, defaults)) = ENERGIES.iter().find(|x| x.0 == e) else {
-                    let known: Vec<&str> = ENERGIES.iter().map(|x| x.0).collect();
-                    return Err(value_error(format!(
-                        "unknown energy `{e}` (known: {})",
-                        known.join(", ")
-                    )));
-                };
-                let mut values: Vec<(String, ParamValue)> = defaults
-                    .iter()
-                    .map(|(k, v)| (k.to_string(), ParamValue::Scalar(*v)))
-                    .collect();
-                for (k, v) in given {
-                    match values.iter_mut().find(|(n, _)| *n == k) {
-                        Some(slot) => slot.1 = v,
-                        None => {
-                            let names: Vec<&str> = defaults.iter().map(|d| d.0).collect();
-                            return Err(value_error(format!(
-                                "energy `{name}` has no parameter `{k}` (it has: {})",
-                                names.join(", ")
-                            )));
-                        }
-                    }
-                }
-                (name.to_string(), text.to_string(), values)
-            }
-        };
+        let (label, text, values) = psi_spec(energy, psi, params)?;
         let pool = match threads {
             Some(0) => return Err(value_error("threads must be at least 1")),
             Some(n) if n > 1024 => {
@@ -466,6 +481,9 @@ fn energies(py: Python<'_>) -> PyResult<Vec<(String, String, Py<PyDict>)>> {
 #[pymodule]
 fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Model>()?;
+    m.add_class::<system::PySystem>()?;
+    m.add_class::<system::PyStepper>()?;
+    m.add_function(wrap_pyfunction!(system::solve_static, m)?)?;
     m.add_function(wrap_pyfunction!(hinges, m)?)?;
     m.add_function(wrap_pyfunction!(energies, m)?)?;
     Ok(())

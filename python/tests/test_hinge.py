@@ -230,3 +230,78 @@ def test_bad_positions_raise_value_error():
     t = hinge.BendingModel(V2, F2, psi="k * ln(theta - 10.0)", k=1.0)
     with pytest.raises(ValueError, match="hinge 0"):
         t.evaluate(V2)
+
+
+def test_system_composes_energies_and_matches_its_parts():
+    V, F = sheet(6, 6, 21)
+    X = bent(V, 22)
+    s = hinge.System(V, F)
+    s.add_bending(energy="tan-bending", k=1e-3).add_membrane(2e5, 0.3, 5e-4).add_gravity(0.1)
+    s.add_sphere((0.5, 0.5, -0.2), 0.3, 2e3, margin=5e-3).add_springs(10.0, compressive=False)
+    assert s.terms == ["tan-bending", "membrane", "gravity", "contact-sphere", "springs"]
+    E, g, H = s.evaluate(X)
+    Eb, gb, Hb = hinge.BendingModel(V, F, energy="tan-bending", k=1e-3).evaluate(X)
+    rest = hinge.System(V, F).add_membrane(2e5, 0.3, 5e-4).add_gravity(0.1)
+    rest.add_sphere((0.5, 0.5, -0.2), 0.3, 2e3, margin=5e-3).add_springs(10.0, compressive=False)
+    Er, gr, Hr = rest.evaluate(X)
+    assert abs(E - (Eb + Er)) <= 1e-12 * abs(E)
+    assert np.abs(g - (gb + gr)).max() <= 1e-12 * np.abs(g).max()
+    assert abs(H - (Hb + Hr)).max() <= 1e-12 * abs(H).max()
+    # Gradient against finite differences of the whole system.
+    h = 1e-7
+    i = 17
+    Xp, Xm = X.copy(), X.copy()
+    Xp.flat[i] += h
+    Xm.flat[i] -= h
+    fd = (s.evaluate(Xp, hessian=False)[0] - s.evaluate(Xm, hessian=False)[0]) / (2 * h)
+    assert abs(fd - g[i]) <= 1e-5 * max(1.0, abs(g[i]))
+
+
+def test_static_solve_reaches_equilibrium_and_holds_pins():
+    V, F = sheet(8, 3, 23, jitter=0.05)
+    V = V * [0.3, 0.3, 1.0]
+    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-2).add_membrane(1e6, 0.3, 1e-3)
+    s.add_gravity(0.5)
+    clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
+    s.pin(clamp)
+    X, stats = hinge.solve_static(s, V)
+    assert stats["final_gradient_norm"] <= 1e-8 and stats["newton_iterations"] > 0
+    assert np.array_equal(X[clamp], V[clamp])
+    assert X[:, 2].min() < -1e-4  # it sagged
+    # At equilibrium the free gradient vanishes.
+    _, g = s.evaluate(X, hessian=False)
+    free = np.setdiff1d(np.arange(len(V)), clamp)
+    assert np.abs(g.reshape(-1, 3)[free]).max() <= 1e-7
+
+
+def test_implicit_euler_falls_and_comes_to_rest_on_a_plane():
+    V, F = sheet(5, 5, 24, jitter=0.05)
+    V = V * 0.2 + [0.0, 0.0, 0.05]
+    s = hinge.System(V, F).add_bending(psi="k * a * (theta - theta_bar).powi(2)", k=1e-3)
+    s.add_membrane(2e5, 0.3, 5e-4).add_gravity(0.1).add_plane((0, 0, 0), (0, 0, 1), 2e3, margin=1e-3)
+    t = hinge.ImplicitEuler(s, V, 1 / 60, 0.1)
+    for _ in range(40):
+        X, stats = t.step()
+        assert stats["max_final_gradient_norm"] <= 1e-8
+    assert abs(t.time - 40 / 60) < 1e-12
+    assert X[:, 2].min() > -2e-3 and X[:, 2].max() < 0.01  # on the plane
+    assert np.abs(t.v).max() < 0.05
+
+
+def test_system_bad_input_raises_value_error():
+    V, F = sheet(3, 3, 25)
+    s = hinge.System(V, F)
+    with pytest.raises(ValueError, match="no energies"):
+        s.evaluate(V)
+    for call, msg in [
+        (lambda: s.add_membrane(-1.0, 0.3, 1e-3), "membrane"),
+        (lambda: s.add_sphere((0, 0), 1.0, 1.0), "3 components"),
+        (lambda: s.add_bending(energy="nope"), "unknown energy"),
+        (lambda: s.pin([999]), "999"),
+        (lambda: s.pin([-1]), "negative"),
+        (lambda: hinge.solve_static(s.add_gravity(0.1), V[:-1]), "shape"),
+        (lambda: hinge.ImplicitEuler(s, V, 1 / 60, -1.0), "density"),
+        (lambda: hinge.ImplicitEuler(s, V, 0.0, 0.1), "dt"),
+    ]:
+        with pytest.raises(ValueError, match=msg):
+            call()

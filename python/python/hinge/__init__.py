@@ -20,7 +20,7 @@ import scipy.sparse as _sp
 
 from . import _hinge
 
-__all__ = ["BendingModel", "hinges", "energies"]
+__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "hinges", "energies"]
 
 
 def _vertices(V):
@@ -150,3 +150,119 @@ class BendingModel:
         if a.ndim != 1:
             raise ValueError("theta_bar must be a 1-D array with one value per hinge")
         self._m.set_rest_angles(a)
+
+
+class System:
+    """Energies composed on one rest mesh, with pinned vertices::
+
+        s = hinge.System(V, F)
+        s.add_bending(energy="tan-bending", k=1e-3)     # or psi="…", with its parameters
+        s.add_membrane(young=2e5, poisson=0.3, thickness=5e-4)
+        s.add_gravity(density=0.1)
+        s.add_sphere(center=(0, 0, 0), radius=0.25, stiffness=2e3, margin=5e-3)
+        s.pin([0, 1, 2])
+        E, g, H = s.evaluate(X)
+
+    Terms: ``add_bending``, ``add_membrane``, ``add_springs``, ``add_gravity``, ``add_drag``, ``add_sphere``,
+    ``add_plane``. Each is checked when added (bad parameters raise ``ValueError`` naming it).
+    """
+
+    def __init__(self, V, F):
+        self._s = _hinge.System(_vertices(V), _faces(F))
+        self.n_vertices = self._s.n_vertices
+
+    def add_bending(self, energy=None, psi=None, **params):
+        if energy is None and psi is None:
+            energy = "discrete-shells"
+        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()})
+        return self
+
+    def add_membrane(self, young, poisson, thickness):
+        self._s.add_membrane(float(young), float(poisson), float(thickness))
+        return self
+
+    def add_springs(self, k, compressive=True):
+        self._s.add_springs(float(k), bool(compressive))
+        return self
+
+    def add_gravity(self, density, g=(0.0, 0.0, -9.81)):
+        self._s.add_gravity(float(density), [float(c) for c in g])
+        return self
+
+    def add_drag(self, density, rate):
+        self._s.add_drag(float(density), float(rate))
+        return self
+
+    def add_sphere(self, center, radius, stiffness, margin=0.0):
+        self._s.add_sphere([float(c) for c in center], float(radius), float(stiffness), float(margin))
+        return self
+
+    def add_plane(self, point, normal, stiffness, margin=0.0):
+        self._s.add_plane([float(c) for c in point], [float(c) for c in normal], float(stiffness),
+                          float(margin))
+        return self
+
+    def pin(self, vertices):
+        v = _np.asarray(vertices)
+        if v.dtype.kind not in "iu" or v.ndim != 1:
+            raise ValueError("pin takes a 1-D integer array of vertex indices")
+        self._s.pin([int(i) for i in v])
+        return self
+
+    @property
+    def pinned(self):
+        return self._s.pinned
+
+    @property
+    def terms(self):
+        """The terms' names, in order."""
+        return self._s.term_names()
+
+    def _x(self, X):
+        X = _np.asarray(X)
+        if X.dtype.kind not in "fiu" or X.shape != (self.n_vertices, 3):
+            raise ValueError(f"positions must be a float array of shape ({self.n_vertices}, 3), got "
+                             f"{X.dtype} {X.shape}")
+        return _np.ascontiguousarray(X, dtype=_np.float64)
+
+    def evaluate(self, X, hessian=True):
+        """``(E, g, H)`` of the whole system (``(E, g)`` with ``hessian=False``)."""
+        E, g, data = self._s.evaluate_raw(self._x(X), bool(hessian))
+        if not hessian:
+            return E, g
+        indptr, indices = self._s.pattern()
+        n = 3 * self.n_vertices
+        return E, g, _sp.csr_matrix((data, indices, indptr), shape=(n, n))
+
+
+def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8):
+    """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
+    system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
+    ``line_search_steps``, ``factorizations``, ``final_gradient_norm``, ``gradient_norms``)."""
+    return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance))
+
+
+class ImplicitEuler:
+    """Implicit Euler on a system: ``stepper = hinge.ImplicitEuler(system, X0, dt, density)``, then
+    ``X, stats = stepper.step()`` per frame (a failing step is retried in substeps; a frame that cannot be
+    taken raises ``ValueError`` and leaves positions, velocities and time as they were)."""
+
+    def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8):
+        V0 = None if V0 is None else system._x(V0)
+        self._t = _hinge.ImplicitEuler(system._s, system._x(X0), float(dt), float(density), V0,
+                                       int(max_iterations), float(gradient_tolerance))
+
+    def step(self):
+        return self._t.step()
+
+    @property
+    def x(self):
+        return self._t.x
+
+    @property
+    def v(self):
+        return self._t.v
+
+    @property
+    def time(self):
+        return self._t.time

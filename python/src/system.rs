@@ -1,0 +1,564 @@
+//! `hinge.System`, `hinge.solve_static` and `hinge.ImplicitEuler`: energies composed on one mesh, and the
+//! Newton solvers of hinge-solver on them.
+
+use hinge_core::TriMesh;
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::export::CsrLayout;
+use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::drag::Drag;
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::pins::Pins;
+use hinge_energies::spring::MassSpring;
+use hinge_solver::linear::FaerLlt;
+use hinge_solver::newton::{
+    ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
+};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::{mesh_from, psi_spec, value_error};
+
+/// One term of a system, as specified (built into energies when the system is used).
+#[derive(Clone)]
+enum Term {
+    Bending {
+        name: String,
+        text: String,
+        values: Vec<(String, ParamValue)>,
+    },
+    Membrane {
+        young: f64,
+        poisson: f64,
+        thickness: f64,
+    },
+    Springs {
+        k: f64,
+        compressive: bool,
+    },
+    Gravity {
+        density: f64,
+        g: [f64; 3],
+    },
+    Drag {
+        density: f64,
+        rate: f64,
+    },
+    Sphere {
+        center: [f64; 3],
+        radius: f64,
+        stiffness: f64,
+        margin: f64,
+    },
+    Plane {
+        point: [f64; 3],
+        normal: [f64; 3],
+        stiffness: f64,
+        margin: f64,
+    },
+}
+
+fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
+    let e = |e: hinge_core::EvalError| e.to_string();
+    let n = rest.n_vertices();
+    Ok(match t {
+        Term::Bending { name, text, values } => match RuntimePsi::new(text, values.clone()) {
+            Ok(p) => Box::new(HingeTerm::new(
+                name.clone(),
+                BendingModel::new(rest, p).map_err(e)?,
+                Method::Refactored,
+            )),
+            Err(RuntimePsiError::TooManyHoisted { .. }) => {
+                let p = RuntimePsi::<32>::with_capacity(text, values.clone())
+                    .map_err(|e| e.to_string())?;
+                Box::new(HingeTerm::new(
+                    name.clone(),
+                    BendingModel::new(rest, p).map_err(e)?,
+                    Method::Refactored,
+                ))
+            }
+            Err(err) => return Err(err.to_string()),
+        },
+        Term::Membrane {
+            young,
+            poisson,
+            thickness,
+        } => Box::new(StvkMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?),
+        Term::Springs { k, compressive } => Box::new(
+            MassSpring::new(rest, *k)
+                .map_err(e)?
+                .drop_compressive_term(!compressive),
+        ),
+        Term::Gravity { density, g } => {
+            Box::new(Gravity::new(lumped_masses(rest, *density), Vector3::from(*g)).map_err(e)?)
+        }
+        Term::Drag { density, rate } => {
+            Box::new(Drag::new(lumped_masses(rest, *density), *rate).map_err(e)?)
+        }
+        Term::Sphere {
+            center,
+            radius,
+            stiffness,
+            margin,
+        } => Box::new(
+            Contact::new(
+                n,
+                Obstacle::Sphere {
+                    center: Vector3::from(*center),
+                    radius: *radius,
+                },
+                *stiffness,
+                *margin,
+            )
+            .map_err(e)?,
+        ),
+        Term::Plane {
+            point,
+            normal,
+            stiffness,
+            margin,
+        } => Box::new(
+            Contact::new(
+                n,
+                Obstacle::Plane {
+                    point: Vector3::from(*point),
+                    normal: Vector3::from(*normal),
+                },
+                *stiffness,
+                *margin,
+            )
+            .map_err(e)?,
+        ),
+    })
+}
+
+/// Energies composed on one rest mesh, with pinned vertices.
+#[pyclass(module = "hinge._hinge", name = "System")]
+pub struct PySystem {
+    rest: TriMesh,
+    terms: Vec<Term>,
+    pins: Vec<usize>,
+    /// The built system and its CSR layout (rebuilt after a change).
+    built: Option<(System, CsrLayout)>,
+}
+
+impl PySystem {
+    fn build(&self) -> Result<System, String> {
+        if self.terms.is_empty() {
+            return Err(
+                "the system has no energies: add some (add_bending, add_membrane, …)".into(),
+            );
+        }
+        let terms = self
+            .terms
+            .iter()
+            .map(|t| build_term(&self.rest, t))
+            .collect::<Result<Vec<_>, _>>()?;
+        System::new(self.rest.n_vertices(), terms).map_err(|e| e.to_string())
+    }
+
+    fn ensure(&mut self, py: Python<'_>) -> PyResult<()> {
+        if self.built.is_none() {
+            let s = py.detach(|| self.build()).map_err(value_error)?;
+            let csr = CsrLayout::new(s.pattern());
+            self.built = Some((s, csr));
+        }
+        Ok(())
+    }
+
+    fn add(&mut self, t: Term) -> PyResult<()> {
+        // Built once to check the parameters now (the error names the term), then kept.
+        build_term(&self.rest, &t).map_err(value_error)?;
+        self.terms.push(t);
+        self.built = None;
+        Ok(())
+    }
+
+    fn pins(&self) -> PyResult<Pins> {
+        Pins::new(self.rest.n_vertices(), self.pins.clone()).map_err(value_error)
+    }
+
+    fn positions(&self, x: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<Vector3<f64>>> {
+        let s = x.shape();
+        if s.len() != 2 || s[1] != 3 || s[0] != self.rest.n_vertices() {
+            return Err(value_error(format!(
+                "positions must have shape ({}, 3), got {s:?}",
+                self.rest.n_vertices()
+            )));
+        }
+        let a = x.as_array();
+        Ok((0..s[0])
+            .map(|i| Vector3::new(a[[i, 0]], a[[i, 1]], a[[i, 2]]))
+            .collect())
+    }
+}
+
+fn vec3(name: &str, v: Vec<f64>) -> PyResult<[f64; 3]> {
+    <[f64; 3]>::try_from(v)
+        .map_err(|v| value_error(format!("{name} must have 3 components, got {}", v.len())))
+}
+
+fn to_array<'py>(py: Python<'py>, x: &[Vector3<f64>]) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let rows: Vec<Vec<f64>> = x.iter().map(|p| vec![p.x, p.y, p.z]).collect();
+    PyArray2::from_vec2(py, &rows).map_err(value_error)
+}
+
+fn stats_dict<'py>(py: Python<'py>, s: &NewtonStats) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("newton_iterations", s.iterations)?;
+    d.set_item("line_search_steps", s.line_search_steps)?;
+    d.set_item("factorizations", s.factorizations)?;
+    d.set_item(
+        "final_gradient_norm",
+        s.gradient_norms.last().copied().unwrap_or(f64::NAN),
+    )?;
+    d.set_item("gradient_norms", s.gradient_norms.clone())?;
+    Ok(d)
+}
+
+#[pymethods]
+impl PySystem {
+    /// `System(V, F)`: an empty system on the rest mesh.
+    #[new]
+    fn new(v: PyReadonlyArray2<'_, f64>, f: PyReadonlyArray2<'_, i64>) -> PyResult<Self> {
+        Ok(Self {
+            rest: mesh_from(&v, &f)?,
+            terms: Vec::new(),
+            pins: Vec::new(),
+            built: None,
+        })
+    }
+
+    /// A hinge bending term: a built-in energy or a ψ string, with its parameters.
+    #[pyo3(signature = (energy=None, psi=None, params=None))]
+    fn add_bending(
+        &mut self,
+        energy: Option<&str>,
+        psi: Option<&str>,
+        params: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<()> {
+        let (name, text, values) = psi_spec(energy, psi, params)?;
+        self.add(Term::Bending { name, text, values })
+    }
+
+    /// A St. Venant–Kirchhoff membrane (Young's modulus, Poisson ratio, thickness).
+    fn add_membrane(&mut self, young: f64, poisson: f64, thickness: f64) -> PyResult<()> {
+        self.add(Term::Membrane {
+            young,
+            poisson,
+            thickness,
+        })
+    }
+
+    /// Mass-spring edges of stiffness k (`compressive=False` drops the compressive Hessian term).
+    #[pyo3(signature = (k, compressive=true))]
+    fn add_springs(&mut self, k: f64, compressive: bool) -> PyResult<()> {
+        self.add(Term::Springs { k, compressive })
+    }
+
+    /// Gravity on lumped masses of `density` (mass per area).
+    #[pyo3(signature = (density, g=vec![0.0, 0.0, -9.81]))]
+    fn add_gravity(&mut self, density: f64, g: Vec<f64>) -> PyResult<()> {
+        self.add(Term::Gravity {
+            density,
+            g: vec3("g", g)?,
+        })
+    }
+
+    /// Mass-proportional drag of `rate` (1/s) on lumped masses of `density`.
+    fn add_drag(&mut self, density: f64, rate: f64) -> PyResult<()> {
+        self.add(Term::Drag { density, rate })
+    }
+
+    /// Penalty contact with a sphere.
+    #[pyo3(signature = (center, radius, stiffness, margin=0.0))]
+    fn add_sphere(
+        &mut self,
+        center: Vec<f64>,
+        radius: f64,
+        stiffness: f64,
+        margin: f64,
+    ) -> PyResult<()> {
+        self.add(Term::Sphere {
+            center: vec3("center", center)?,
+            radius,
+            stiffness,
+            margin,
+        })
+    }
+
+    /// Penalty contact with a plane (vertices pushed to the side `normal` points to).
+    #[pyo3(signature = (point, normal, stiffness, margin=0.0))]
+    fn add_plane(
+        &mut self,
+        point: Vec<f64>,
+        normal: Vec<f64>,
+        stiffness: f64,
+        margin: f64,
+    ) -> PyResult<()> {
+        self.add(Term::Plane {
+            point: vec3("point", point)?,
+            normal: vec3("normal", normal)?,
+            stiffness,
+            margin,
+        })
+    }
+
+    /// Pins vertices (held at their positions by the solvers).
+    fn pin(&mut self, vertices: Vec<i64>) -> PyResult<()> {
+        let mut all = self.pins.clone();
+        for v in vertices {
+            all.push(
+                usize::try_from(v).map_err(|_| value_error(format!("pin: negative vertex {v}")))?,
+            );
+        }
+        Pins::new(self.rest.n_vertices(), all.clone()).map_err(value_error)?;
+        self.pins = all;
+        Ok(())
+    }
+
+    /// The pinned vertices.
+    #[getter]
+    fn pinned(&self) -> Vec<usize> {
+        self.pins.clone()
+    }
+
+    /// Number of vertices.
+    #[getter]
+    fn n_vertices(&self) -> usize {
+        self.rest.n_vertices()
+    }
+
+    /// The terms' names, in order.
+    fn term_names(&self) -> Vec<String> {
+        self.terms
+            .iter()
+            .map(|t| match t {
+                Term::Bending { name, .. } => name.clone(),
+                Term::Membrane { .. } => "membrane".into(),
+                Term::Springs { .. } => "springs".into(),
+                Term::Gravity { .. } => "gravity".into(),
+                Term::Drag { .. } => "drag".into(),
+                Term::Sphere { .. } => "contact-sphere".into(),
+                Term::Plane { .. } => "contact-plane".into(),
+            })
+            .collect()
+    }
+
+    /// `(indptr, indices)` of the system Hessian's full CSR structure.
+    fn pattern<'py>(
+        &mut self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+        self.ensure(py)?;
+        let Some((_, csr)) = &self.built else {
+            return Err(value_error("system not built"));
+        };
+        let p: Vec<i64> = csr.row_ptr().iter().map(|&x| x as i64).collect();
+        let c: Vec<i64> = csr.col_idx().iter().map(|&x| x as i64).collect();
+        Ok((p.into_pyarray(py), c.into_pyarray(py)))
+    }
+
+    /// `(E, g, data)` of the whole system at `x` (data in `pattern()` order, None without `hessian`).
+    #[pyo3(signature = (x, hessian=true))]
+    #[allow(clippy::type_complexity)]
+    fn evaluate_raw<'py>(
+        &mut self,
+        py: Python<'py>,
+        x: PyReadonlyArray2<'py, f64>,
+        hessian: bool,
+    ) -> PyResult<(
+        f64,
+        Bound<'py, PyArray1<f64>>,
+        Option<Bound<'py, PyArray1<f64>>>,
+    )> {
+        let pos = self.positions(&x)?;
+        self.ensure(py)?;
+        let Some((sys, csr)) = &mut self.built else {
+            return Err(value_error("system not built"));
+        };
+        let request = Request {
+            value: true,
+            gradient: true,
+            hessian,
+            definite: false,
+        };
+        let r = py.detach(|| -> Result<_, String> {
+            let e = sys
+                .evaluate(&pos, request, Parallelism::Rayon)
+                .map_err(|e| e.to_string())?;
+            let mut data = Vec::new();
+            if hessian {
+                data = vec![0.0; csr.nnz()];
+                csr.scatter(&e.hessian, &mut data)
+                    .map_err(|e| e.to_string())?;
+            }
+            Ok((e.energy, e.gradient, data))
+        });
+        let (energy, g, data) = r.map_err(value_error)?;
+        Ok((
+            energy,
+            g.into_pyarray(py),
+            hessian.then(|| data.into_pyarray(py)),
+        ))
+    }
+}
+
+fn newton_params(max_iterations: usize, gradient_tolerance: f64) -> PyResult<NewtonParams> {
+    if max_iterations == 0 || !(gradient_tolerance > 0.0 && gradient_tolerance.is_finite()) {
+        return Err(value_error(format!(
+            "max_iterations must be ≥ 1 and gradient_tolerance positive and finite (got {max_iterations}, {gradient_tolerance})"
+        )));
+    }
+    Ok(NewtonParams {
+        max_iterations,
+        gradient_tolerance,
+        ..NewtonParams::default()
+    })
+}
+
+/// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8)`: the equilibrium ∇E = 0 from
+/// `X0` (pinned vertices held at their `X0` positions) by Newton. Returns `(X, stats)`; a failed solve raises
+/// `ValueError` with the solver's message.
+#[pyfunction]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8))]
+pub fn solve_static<'py>(
+    py: Python<'py>,
+    system: &mut PySystem,
+    x0: PyReadonlyArray2<'py, f64>,
+    max_iterations: usize,
+    gradient_tolerance: f64,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+    let mut x = system.positions(&x0)?;
+    let params = newton_params(max_iterations, gradient_tolerance)?;
+    let pins = system.pins()?;
+    system.ensure(py)?;
+    let Some((sys, _)) = &mut system.built else {
+        return Err(value_error("system not built"));
+    };
+    let r = py.detach(|| -> Result<NewtonStats, String> {
+        let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
+            .map_err(|e| e.to_string())?;
+        newton
+            .minimize(sys, &mut x, None)
+            .map_err(|e| format!("static solve: {e}"))
+    });
+    let stats = r.map_err(value_error)?;
+    Ok((to_array(py, &x)?, stats_dict(py, &stats)?))
+}
+
+/// Implicit Euler time stepping on a system: `ImplicitEuler(system, X0, dt, density, V0=None, …)`.
+#[pyclass(module = "hinge._hinge", name = "ImplicitEuler")]
+pub struct PyStepper {
+    /// Behind a mutex: the linear solver is `Send` but not `Sync`.
+    state: std::sync::Mutex<StepState>,
+}
+
+struct StepState {
+    system: System,
+    stepper: Stepper,
+    x: Vec<Vector3<f64>>,
+    v: Vec<Vector3<f64>>,
+    time: f64,
+}
+
+impl PyStepper {
+    fn lock(&self) -> PyResult<std::sync::MutexGuard<'_, StepState>> {
+        self.state
+            .lock()
+            .map_err(|_| value_error("the stepper failed in another thread"))
+    }
+}
+
+#[pymethods]
+impl PyStepper {
+    /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
+    /// `density`; the system's current terms and pins are copied.
+    #[new]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        system: &PySystem,
+        x0: PyReadonlyArray2<'_, f64>,
+        dt: f64,
+        density: f64,
+        v0: Option<PyReadonlyArray2<'_, f64>>,
+        max_iterations: usize,
+        gradient_tolerance: f64,
+    ) -> PyResult<Self> {
+        let x = system.positions(&x0)?;
+        let v = match v0 {
+            Some(a) => system.positions(&a)?,
+            None => vec![Vector3::zeros(); x.len()],
+        };
+        if !(density > 0.0 && density.is_finite()) {
+            return Err(value_error(format!(
+                "density must be positive and finite, got {density}"
+            )));
+        }
+        let params = newton_params(max_iterations, gradient_tolerance)?;
+        let pins = system.pins()?;
+        let sys = py.detach(|| system.build()).map_err(value_error)?;
+        let masses = lumped_masses(&system.rest, density);
+        let stepper = Stepper::new(&sys, dt, masses, pins, Box::new(FaerLlt::default()), params)
+            .map_err(value_error)?;
+        Ok(Self {
+            state: std::sync::Mutex::new(StepState {
+                system: sys,
+                stepper,
+                x,
+                v,
+                time: 0.0,
+            }),
+        })
+    }
+
+    /// One frame of `dt` (split into substeps if a step fails): returns `(X, stats)`. On failure raises
+    /// `ValueError`, and positions, velocities and time stay those before the call.
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+        let mut guard = self.lock()?;
+        let st: &mut StepState = &mut guard;
+        let r = py.detach(|| {
+            st.stepper
+                .advance(
+                    &mut st.system,
+                    &mut st.x,
+                    &mut st.v,
+                    SubstepPolicy::default(),
+                )
+                .map_err(|e| e.to_string())
+        });
+        let fs = r.map_err(value_error)?;
+        st.time += st.stepper.dt;
+        let d = stats_dict(py, &fs.newton)?;
+        d.set_item("substeps", fs.substeps)?;
+        d.set_item("max_final_gradient_norm", fs.max_final_gradient_norm)?;
+        Ok((to_array(py, &st.x)?, d))
+    }
+
+    /// Current positions.
+    #[getter]
+    fn x<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        to_array(py, &self.lock()?.x)
+    }
+
+    /// Current velocities.
+    #[getter]
+    fn v<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        to_array(py, &self.lock()?.v)
+    }
+
+    /// Simulated time.
+    #[getter]
+    fn time(&self) -> PyResult<f64> {
+        Ok(self.lock()?.time)
+    }
+}
