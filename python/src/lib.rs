@@ -56,13 +56,16 @@ pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// A bending term's name, ψ text and parameters.
+pub(crate) type PsiSpec = (String, String, Vec<(String, ParamValue)>);
+
 /// The (name, ψ text, parameters) of a bending term: a built-in `energy` with its defaults overridden, or a
 /// `psi` string with the parameters given.
 pub(crate) fn psi_spec(
     energy: Option<&str>,
     psi: Option<&str>,
     params: Option<&Bound<'_, PyDict>>,
-) -> PyResult<(String, String, Vec<(String, ParamValue)>)> {
+) -> PyResult<PsiSpec> {
     let mut given: Vec<(String, ParamValue)> = Vec::new();
     if let Some(d) = params {
         for (k, v) in d.iter() {
@@ -104,6 +107,9 @@ pub(crate) fn psi_spec(
         }
     })
 }
+
+/// `(indptr, indices)` of a CSR matrix.
+pub(crate) type CsrStructure<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>);
 
 /// A model with the capacity its expression needs.
 enum Inner {
@@ -281,10 +287,7 @@ impl Model {
     }
 
     /// The full symmetric CSR structure of the Hessian: `(indptr, indices)` (int64), fixed for the model.
-    fn pattern<'py>(
-        &self,
-        py: Python<'py>,
-    ) -> (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>) {
+    fn pattern<'py>(&self, py: Python<'py>) -> CsrStructure<'py> {
         let p: Vec<i64> = self.csr.row_ptr().iter().map(|&x| x as i64).collect();
         let c: Vec<i64> = self.csr.col_idx().iter().map(|&x| x as i64).collect();
         (p.into_pyarray(py), c.into_pyarray(py))

@@ -350,10 +350,7 @@ impl PySystem {
     }
 
     /// `(indptr, indices)` of the system Hessian's full CSR structure.
-    fn pattern<'py>(
-        &mut self,
-        py: Python<'py>,
-    ) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+    fn pattern<'py>(&mut self, py: Python<'py>) -> PyResult<crate::CsrStructure<'py>> {
         self.ensure(py)?;
         let Some((_, csr)) = &self.built else {
             return Err(value_error("system not built"));
