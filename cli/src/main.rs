@@ -10,9 +10,9 @@ mod bench;
 mod eval;
 mod plot;
 mod report;
-mod run;
-mod scene;
 mod stability;
+
+use hinge_cli::{run, scene};
 
 use std::process::ExitCode;
 

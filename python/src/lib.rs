@@ -487,6 +487,7 @@ fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PySystem>()?;
     m.add_class::<system::PyStepper>()?;
     m.add_function(wrap_pyfunction!(system::solve_static, m)?)?;
+    m.add_function(wrap_pyfunction!(system::run_scene, m)?)?;
     m.add_function(wrap_pyfunction!(hinges, m)?)?;
     m.add_function(wrap_pyfunction!(energies, m)?)?;
     Ok(())

@@ -17,7 +17,9 @@ use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -558,4 +560,72 @@ impl PyStepper {
     fn time(&self) -> PyResult<f64> {
         Ok(self.lock()?.time)
     }
+}
+
+/// Frames of a scene: (frames, n, 3) positions.
+type Frames = Vec<Vec<Vector3<f64>>>;
+
+/// `run_scene(scene, frames=None)`: simulates a built-in scene (`drape`, `shell-drop`, `beam1`, …) or a
+/// TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh, the positions of
+/// every frame as a (frames, n, 3) array, and the run's counts.
+#[pyfunction]
+#[pyo3(signature = (scene, frames=None))]
+#[allow(clippy::type_complexity)]
+pub fn run_scene<'py>(
+    py: Python<'py>,
+    scene: &str,
+    frames: Option<usize>,
+) -> PyResult<(
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<i64>>,
+    Bound<'py, numpy::PyArray3<f64>>,
+    Bound<'py, PyDict>,
+)> {
+    let (mut sc, base) = hinge_cli::scene::load(scene).map_err(value_error)?;
+    if let Some(f) = frames {
+        if f == 0 || f > 100_000 {
+            return Err(value_error(format!("frames must be 1 to 100000, got {f}")));
+        }
+        sc.frames = f;
+    }
+    let rest = sc.rest_mesh(base.as_deref()).map_err(value_error)?;
+    let n = rest.n_vertices();
+    if sc.frames.saturating_mul(n) > 50_000_000 {
+        return Err(value_error(format!(
+            "{} frames of {n} vertices is more than this call returns at once (5e7 positions)",
+            sc.frames
+        )));
+    }
+    let mut xs: Frames = Vec::with_capacity(sc.frames);
+    let summary = py
+        .detach(|| hinge_cli::run::simulate(&sc, &rest, None, |_, _, _, x| xs.push(x.to_vec())))
+        .map_err(value_error)?;
+    let flat: Vec<f64> = xs
+        .iter()
+        .flat_map(|f| f.iter().flat_map(|p| [p.x, p.y, p.z]))
+        .collect();
+    let arr = flat
+        .into_pyarray(py)
+        .reshape([xs.len(), n, 3])
+        .map_err(value_error)?;
+    let tris: Vec<Vec<i64>> = rest
+        .triangles()
+        .iter()
+        .map(|t| t.iter().map(|&v| v as i64).collect())
+        .collect();
+    let d = PyDict::new(py);
+    d.set_item("frames", summary.frames)?;
+    d.set_item("newton_iterations", summary.newton_iterations)?;
+    d.set_item("factorizations", summary.factorizations)?;
+    d.set_item("line_search_steps", summary.line_search_steps)?;
+    d.set_item("substeps", summary.substeps)?;
+    d.set_item("max_final_gradient_norm", summary.max_final_gradient_norm)?;
+    d.set_item("total_seconds", summary.total_seconds)?;
+    d.set_item("min_clearance", summary.min_clearance)?;
+    Ok((
+        to_array(py, rest.positions())?,
+        PyArray2::from_vec2(py, &tris).map_err(value_error)?,
+        arr,
+        d,
+    ))
 }

@@ -305,3 +305,19 @@ def test_system_bad_input_raises_value_error():
     ]:
         with pytest.raises(ValueError, match=msg):
             call()
+
+
+def test_run_scene_gives_frames_like_the_cli(tmp_path):
+    V, F, X, summary = hinge.run_scene("drape", frames=8)
+    assert X.shape == (8, len(V), 3) and F.shape[1] == 3
+    assert summary["frames"] == 8 and summary["newton_iterations"] > 0
+    assert summary["max_final_gradient_norm"] <= 1e-6
+    assert (X[-1, :, 2] < V[:, 2]).all()  # it fell
+    toml = tmp_path / "bad.toml"
+    toml.write_text('name = "x"\\nframes = 1\\ndt = -1.0\\n')
+    with pytest.raises(ValueError, match="dt"):
+        hinge.run_scene(str(toml))
+    with pytest.raises(ValueError, match="unknown scene"):
+        hinge.run_scene("nope")
+    with pytest.raises(ValueError, match="frames"):
+        hinge.run_scene("drape", frames=0)

@@ -20,7 +20,7 @@ import scipy.sparse as _sp
 
 from . import _hinge
 
-__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "hinges", "energies"]
+__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies"]
 
 
 def _vertices(V):
@@ -266,3 +266,12 @@ class ImplicitEuler:
     @property
     def time(self):
         return self._t.time
+
+
+def run_scene(scene, frames=None):
+    """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
+    ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
+    (frames, n, 3) array, and the run's counts (a dict)."""
+    if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
+        raise ValueError(f"frames must be an integer, got {frames!r}")
+    return _hinge.run_scene(str(scene), frames)
