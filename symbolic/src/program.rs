@@ -477,17 +477,7 @@ fn tier(n: usize) -> usize {
 
 /// The operands of a node, in instruction order.
 fn operands(n: Node) -> Vec<Id> {
-    match n {
-        Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
-        Node::Add(a, b)
-        | Node::Sub(a, b)
-        | Node::Mul(a, b)
-        | Node::Div(a, b)
-        | Node::Powf(a, b)
-        | Node::Atan2(a, b) => vec![a, b],
-        Node::Neg(a) | Node::Powi(a, _) | Node::Call(_, a) => vec![a],
-        Node::Select(_, l, r, a, b) => vec![l, r, a, b],
-    }
+    crate::sym::children_of(&n)
 }
 
 /// The run-time form of a [`Compiled`] ψ: a program for the hoisted parameters (from the vars), and three

@@ -531,7 +531,8 @@ impl Arena {
     }
 }
 
-fn children_of(n: &Node) -> Vec<Id> {
+/// The operands of a node, in the order the schedule and the programs read them.
+pub fn children_of(n: &Node) -> Vec<Id> {
     match *n {
         Node::Const(_) | Node::Theta | Node::Var(_) => vec![],
         Node::Add(a, b)

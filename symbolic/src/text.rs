@@ -227,36 +227,31 @@ impl Parser {
 
     fn expr(&mut self, depth: usize) -> Parsed {
         self.deep(depth, self.span())?;
-        let (mut lhs, mut d) = self.product(depth + 1)?;
-        loop {
-            let op = match self.peek() {
-                Tok::Sym("+") => BinOp::Add,
-                Tok::Sym("-") => BinOp::Sub,
-                _ => return Ok((lhs, d)),
-            };
-            let span = self.bump().1;
-            let (rhs, dr) = self.product(depth + 1)?;
-            d = d.max(dr) + 1;
-            self.deep(d, span)?;
-            lhs = Expr::Binary {
-                op,
-                lhs: Box::new(lhs),
-                rhs: Box::new(rhs),
-                span,
-            };
-        }
+        self.level(
+            depth,
+            &[("+", BinOp::Add), ("-", BinOp::Sub)],
+            Self::product,
+        )
     }
 
     fn product(&mut self, depth: usize) -> Parsed {
-        let (mut lhs, mut d) = self.unary(depth + 1)?;
+        self.level(depth, &[("*", BinOp::Mul), ("/", BinOp::Div)], Self::unary)
+    }
+
+    /// One left-associative precedence level: `next (op next)*` for the operators `ops`.
+    fn level(
+        &mut self,
+        depth: usize,
+        ops: &[(&str, BinOp)],
+        next: fn(&mut Self, usize) -> Parsed,
+    ) -> Parsed {
+        let (mut lhs, mut d) = next(self, depth + 1)?;
         loop {
-            let op = match self.peek() {
-                Tok::Sym("*") => BinOp::Mul,
-                Tok::Sym("/") => BinOp::Div,
-                _ => return Ok((lhs, d)),
+            let Some(&(_, op)) = ops.iter().find(|(sym, _)| self.is(sym)) else {
+                return Ok((lhs, d));
             };
             let span = self.bump().1;
-            let (rhs, dr) = self.unary(depth + 1)?;
+            let (rhs, dr) = next(self, depth + 1)?;
             d = d.max(dr) + 1;
             self.deep(d, span)?;
             lhs = Expr::Binary {

@@ -132,6 +132,20 @@ pub fn fd_energy_derivatives(
     (g, hess)
 }
 
+/// Random per-hinge quantities (θ̄ ∈ [−1, 1], a ∈ [0.5, 3], lengths and areas ∈ [0.1, 2], θ_prev ∈ [−1, 1],
+/// dt ∈ [0.001, 0.1]) for hinge `hinge`: what the ψ tests evaluate parameters on.
+pub fn random_quantities(rng: &mut SplitMix64, hinge: usize) -> hinge_core::psi::HingeQuantities {
+    hinge_core::psi::HingeQuantities {
+        hinge,
+        theta_bar: rng.range(-1.0, 1.0),
+        a: rng.range(0.5, 3.0),
+        rest_length: rng.range(0.1, 2.0),
+        rest_area: rng.range(0.1, 2.0),
+        theta_prev: rng.range(-1.0, 1.0),
+        dt: rng.range(0.001, 0.1),
+    }
+}
+
 /// Runs `f` on a fresh rayon pool of `threads` threads (the thread-count tests of bitwise determinism).
 pub fn on_threads<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
     rayon::ThreadPoolBuilder::new()

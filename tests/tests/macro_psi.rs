@@ -11,15 +11,7 @@ use hinge_tests::*;
 use num_dual::{DualNum, second_derivative};
 
 fn quantities(rng: &mut SplitMix64, hinge: usize) -> HingeQuantities {
-    HingeQuantities {
-        hinge,
-        theta_bar: rng.range(-1.0, 1.0),
-        a: rng.range(0.5, 3.0),
-        rest_length: rng.range(0.1, 2.0),
-        rest_area: rng.range(0.1, 2.0),
-        theta_prev: rng.range(-1.0, 1.0),
-        dt: rng.range(0.001, 0.1),
-    }
+    random_quantities(rng, hinge)
 }
 
 /// Max relative error of ψ, ψ′, ψ″ against num-dual's `second_derivative` of `psi_dual`, over 1000 θ in

@@ -18,15 +18,7 @@ mod pairs {
 }
 
 fn quantities(rng: &mut SplitMix64, hinge: usize) -> HingeQuantities {
-    HingeQuantities {
-        hinge,
-        theta_bar: rng.range(-1.0, 1.0),
-        a: rng.range(0.5, 3.0),
-        rest_length: rng.range(0.1, 2.0),
-        rest_area: rng.range(0.1, 2.0),
-        theta_prev: rng.range(-1.0, 1.0),
-        dt: rng.range(0.001, 0.1),
-    }
+    random_quantities(rng, hinge)
 }
 
 fn ulps(a: f64, b: f64) -> u64 {
