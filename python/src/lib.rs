@@ -7,10 +7,13 @@
 
 mod system;
 
+use hinge_cli::scene::CustomPsi;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::bending::{Evaluation, Scratch};
 use hinge_core::export::CsrLayout;
 use hinge_core::layout::Positions;
-use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use hinge_core::{TriMesh, topology};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1,
@@ -136,6 +139,9 @@ struct Model {
     n_vertices: usize,
     hinges: Vec<[usize; 4]>,
     energy: String,
+    /// Evaluation buffers kept between calls (`evaluate_into` allocates nothing per call); a mutex because
+    /// a Python object may be used from several threads.
+    buffers: std::sync::Mutex<(Scratch, Evaluation)>,
 }
 
 pub(crate) fn mesh_from(
@@ -227,23 +233,16 @@ impl Model {
         let mesh = mesh_from(&v, &f)?;
         let inner = py.detach(|| -> Result<Inner, String> {
             let e = |e: hinge_core::EvalError| e.to_string();
-            Ok(match RuntimePsi::new(&text, values.clone()) {
-                Ok(p) => Inner::Small(BendingModel::new(&mesh, p).map_err(e)?),
-                Err(RuntimePsiError::TooManyHoisted { .. }) => Inner::Large(
-                    BendingModel::new(
-                        &mesh,
-                        RuntimePsi::<32>::with_capacity(&text, values)
-                            .map_err(|e| e.to_string())?,
-                    )
-                    .map_err(e)?,
-                ),
-                Err(err) => return Err(err.to_string()),
+            Ok(match CustomPsi::new(&text, values)? {
+                CustomPsi::Small(p) => Inner::Small(BendingModel::new(&mesh, p).map_err(e)?),
+                CustomPsi::Large(p) => Inner::Large(BendingModel::new(&mesh, p).map_err(e)?),
             })
         });
         let inner = inner.map_err(value_error)?;
-        let (csr, hinges) = with_model!(&inner, m => (
+        let (csr, hinges, buffers) = with_model!(&inner, m => (
             CsrLayout::new(m.pattern()),
             m.topology().hinges().iter().map(|h| h.vertices).collect::<Vec<_>>(),
+            (m.new_scratch(), m.new_output()),
         ));
         Ok(Self {
             inner,
@@ -253,6 +252,7 @@ impl Model {
             n_vertices: mesh.n_vertices(),
             hinges,
             energy: label,
+            buffers: std::sync::Mutex::new(buffers),
         })
     }
 
@@ -324,21 +324,13 @@ impl Model {
         let method = self.method;
         let nnz = self.csr.nnz();
         let result = self.install(py, || -> Result<(f64, Vec<f64>, Vec<f64>), String> {
-            let e = with_model!(&self.inner, m => m
-                .evaluate(pos, request, method, Parallelism::Rayon)
-                .map_err(|e| e.to_string())?);
+            let (energy, g, h) = self.run(pos, request, method)?;
             let mut data = Vec::new();
             if hessian {
                 data = vec![0.0; nnz];
-                self.csr
-                    .scatter(&e.hessian, &mut data)
-                    .map_err(|e| e.to_string())?;
+                self.csr.scatter(&h, &mut data).map_err(|e| e.to_string())?;
             }
-            Ok((
-                e.energy,
-                if gradient { e.gradient } else { Vec::new() },
-                data,
-            ))
+            Ok((energy, g, data))
         });
         let (energy, g, data) = result.map_err(value_error)?;
         Ok((
@@ -390,14 +382,21 @@ impl Model {
         };
         let method = self.method;
         let r = self.install(py, move || -> Result<f64, String> {
-            let e = with_model!(&self.inner, m => m
-                .evaluate(pos, request, method, Parallelism::Rayon)
+            let mut guard = self
+                .buffers
+                .lock()
+                .map_err(|_| "evaluation buffers poisoned".to_string())?;
+            let (scratch, out) = &mut *guard;
+            with_model!(&self.inner, m => m
+                .evaluate_into(pos, request, method, Parallelism::Rayon, scratch, out)
                 .map_err(|e| e.to_string())?);
-            g.copy_from_slice(&e.gradient);
+            g.copy_from_slice(&out.gradient);
             if let Some(d) = data {
-                self.csr.scatter(&e.hessian, d).map_err(|e| e.to_string())?;
+                self.csr
+                    .scatter(&out.hessian, d)
+                    .map_err(|e| e.to_string())?;
             }
-            Ok(e.energy)
+            Ok(out.energy)
         });
         r.map_err(value_error)
     }
@@ -432,7 +431,36 @@ impl Model {
 }
 
 impl Model {
-    fn positions<'a>(&self, x: &'a PyReadonlyArray2<'_, f64>) -> PyResult<&'a [nalgebra_vec::V3]> {
+    /// One evaluation in the kept buffers: energy, gradient (empty unless requested) and the Hessian values
+    /// in the model's storage order (empty unless requested), copied out for the caller's new arrays.
+    fn run(
+        &self,
+        pos: &[Vector3<f64>],
+        request: Request,
+        method: Method,
+    ) -> Result<(f64, Vec<f64>, Vec<f64>), String> {
+        let mut guard = self
+            .buffers
+            .lock()
+            .map_err(|_| "evaluation buffers poisoned".to_string())?;
+        let (scratch, out) = &mut *guard;
+        with_model!(&self.inner, m => m
+            .evaluate_into(pos, request, method, Parallelism::Rayon, scratch, out)
+            .map_err(|e| e.to_string())?);
+        let g = if request.gradient {
+            out.gradient.clone()
+        } else {
+            Vec::new()
+        };
+        let h = if request.hessian {
+            out.hessian.clone()
+        } else {
+            Vec::new()
+        };
+        Ok((out.energy, g, h))
+    }
+
+    fn positions<'a>(&self, x: &'a PyReadonlyArray2<'_, f64>) -> PyResult<&'a [Vector3<f64>]> {
         let s = x.shape();
         if s.len() != 2 || s[1] != 3 || s[0] != self.n_vertices {
             return Err(value_error(format!(
@@ -443,11 +471,6 @@ impl Model {
         let flat = x.as_slice().map_err(value_error)?;
         flat.as_vectors().map_err(value_error)
     }
-}
-
-mod nalgebra_vec {
-    /// A vertex position.
-    pub type V3 = hinge_core::nalgebra::Vector3<f64>;
 }
 
 /// The hinges of a mesh before any model is built: an (h, 4) int64 array of stencil vertices, hinge order.

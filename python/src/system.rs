@@ -1,12 +1,14 @@
 //! `hinge.System`, `hinge.solve_static` and `hinge.ImplicitEuler`: energies composed on one mesh, and the
 //! Newton solvers of hinge-solver on them.
 
+use hinge_cli::scene::CustomPsi;
 use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::SystemEvaluation;
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::export::CsrLayout;
 use hinge_core::nalgebra::Vector3;
-use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_core::psi::runtime::ParamValue;
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
@@ -68,22 +70,17 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
     let e = |e: hinge_core::EvalError| e.to_string();
     let n = rest.n_vertices();
     Ok(match t {
-        Term::Bending { name, text, values } => match RuntimePsi::new(text, values.clone()) {
-            Ok(p) => Box::new(HingeTerm::new(
+        Term::Bending { name, text, values } => match CustomPsi::new(text, values.clone())? {
+            CustomPsi::Small(p) => Box::new(HingeTerm::new(
                 name.clone(),
                 BendingModel::new(rest, p).map_err(e)?,
                 Method::Refactored,
             )),
-            Err(RuntimePsiError::TooManyHoisted { .. }) => {
-                let p = RuntimePsi::<32>::with_capacity(text, values.clone())
-                    .map_err(|e| e.to_string())?;
-                Box::new(HingeTerm::new(
-                    name.clone(),
-                    BendingModel::new(rest, p).map_err(e)?,
-                    Method::Refactored,
-                ))
-            }
-            Err(err) => return Err(err.to_string()),
+            CustomPsi::Large(p) => Box::new(HingeTerm::new(
+                name.clone(),
+                BendingModel::new(rest, p).map_err(e)?,
+                Method::Refactored,
+            )),
         },
         Term::Membrane {
             young,
@@ -144,8 +141,8 @@ pub struct PySystem {
     rest: TriMesh,
     terms: Vec<Term>,
     pins: Vec<usize>,
-    /// The built system and its CSR layout (rebuilt after a change).
-    built: Option<(System, CsrLayout)>,
+    /// The built system, its CSR layout and its evaluation buffers (rebuilt after a change).
+    built: Option<(System, CsrLayout, SystemEvaluation)>,
 }
 
 impl PySystem {
@@ -167,7 +164,8 @@ impl PySystem {
         if self.built.is_none() {
             let s = py.detach(|| self.build()).map_err(value_error)?;
             let csr = CsrLayout::new(s.pattern());
-            self.built = Some((s, csr));
+            let out = s.new_output();
+            self.built = Some((s, csr, out));
         }
         Ok(())
     }
@@ -354,7 +352,7 @@ impl PySystem {
     /// `(indptr, indices)` of the system Hessian's full CSR structure.
     fn pattern<'py>(&mut self, py: Python<'py>) -> PyResult<crate::CsrStructure<'py>> {
         self.ensure(py)?;
-        let Some((_, csr)) = &self.built else {
+        let Some((_, csr, _)) = &self.built else {
             return Err(value_error("system not built"));
         };
         let p: Vec<i64> = csr.row_ptr().iter().map(|&x| x as i64).collect();
@@ -377,7 +375,7 @@ impl PySystem {
     )> {
         let pos = self.positions(&x)?;
         self.ensure(py)?;
-        let Some((sys, csr)) = &mut self.built else {
+        let Some((sys, csr, out)) = &mut self.built else {
             return Err(value_error("system not built"));
         };
         let request = Request {
@@ -387,16 +385,15 @@ impl PySystem {
             definite: false,
         };
         let r = py.detach(|| -> Result<_, String> {
-            let e = sys
-                .evaluate(&pos, request, Parallelism::Rayon)
+            sys.evaluate_into(&pos, request, Parallelism::Rayon, out)
                 .map_err(|e| e.to_string())?;
             let mut data = Vec::new();
             if hessian {
                 data = vec![0.0; csr.nnz()];
-                csr.scatter(&e.hessian, &mut data)
+                csr.scatter(&out.hessian, &mut data)
                     .map_err(|e| e.to_string())?;
             }
-            Ok((e.energy, e.gradient, data))
+            Ok((out.energy, out.gradient.clone(), data))
         });
         let (energy, g, data) = r.map_err(value_error)?;
         Ok((
@@ -436,7 +433,7 @@ pub fn solve_static<'py>(
     let params = newton_params(max_iterations, gradient_tolerance)?;
     let pins = system.pins()?;
     system.ensure(py)?;
-    let Some((sys, _)) = &mut system.built else {
+    let Some((sys, _, _)) = &mut system.built else {
         return Err(value_error("system not built"));
     };
     let r = py.detach(|| -> Result<NewtonStats, String> {

@@ -36,7 +36,9 @@ pub use text::{Diagnostic, Span};
 /// A ψ string that did not compile: every error found, in source order.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ParseError {
-    /// The errors (a syntax error stops at the first; name errors are all reported).
+    /// Problems with the parameter names themselves (shadowing, repeats): not located in the string.
+    pub parameters: Vec<String>,
+    /// The errors in the string (a syntax error stops at the first; name errors are all reported).
     pub diagnostics: Vec<Diagnostic>,
     /// Whether the supported list is appended (an unknown function or method was used).
     pub show_supported: bool,
@@ -44,11 +46,14 @@ pub struct ParseError {
 
 impl fmt::Display for ParseError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for (i, d) in self.diagnostics.iter().enumerate() {
-            if i > 0 {
-                write!(f, "; ")?;
-            }
-            write!(f, "{d}")?;
+        let mut first = true;
+        for m in &self.parameters {
+            write!(f, "{}{m}", if first { "" } else { "; " })?;
+            first = false;
+        }
+        for d in &self.diagnostics {
+            write!(f, "{}{d}", if first { "" } else { "; " })?;
+            first = false;
         }
         if self.show_supported {
             write!(f, " ({})", lower::SUPPORTED)?;
@@ -62,8 +67,6 @@ impl std::error::Error for ParseError {}
 /// A compiled ψ string.
 #[derive(Clone, Debug)]
 pub struct Source {
-    /// The parse tree (unsimplified: what an independent evaluator walks).
-    pub expr: ast::Expr<Span>,
     /// ψ, ψ′, ψ″, scheduled.
     pub compiled: Compiled,
     /// For each of the caller's inputs, whether the expression reads it.
@@ -75,49 +78,52 @@ pub struct Source {
 /// # Errors
 /// [`ParseError`] with the column of every problem.
 pub fn compile(src: &str, inputs: &[String]) -> Result<Source, ParseError> {
-    let one = |d: Diagnostic| ParseError {
-        diagnostics: vec![d],
-        show_supported: false,
-    };
-    let mut diagnostics = Vec::new();
+    let mut parameters = Vec::new();
     for (k, name) in inputs.iter().enumerate() {
         if let Some(what) = lower::reserved(name) {
-            diagnostics.push(Diagnostic {
-                span: Span::default(),
-                message: format!("parameter `{name}` shadows {what}; rename it"),
-            });
+            parameters.push(format!("parameter `{name}` shadows {what}; rename it"));
         } else if inputs[..k].contains(name) {
-            diagnostics.push(Diagnostic {
-                span: Span::default(),
-                message: format!("parameter `{name}` is given twice"),
-            });
+            parameters.push(format!("parameter `{name}` is given twice"));
         }
     }
     if inputs.len() + lower::PROVIDED.len() > 63 {
-        return Err(one(Diagnostic {
-            span: Span::default(),
-            message: format!("{} parameters: at most 57 are supported", inputs.len()),
-        }));
+        parameters.push(format!(
+            "{} parameters: at most 57 are supported",
+            inputs.len()
+        ));
+        return Err(ParseError {
+            parameters,
+            diagnostics: Vec::new(),
+            show_supported: false,
+        });
     }
-    let expr = text::parse(src).map_err(one)?;
+    let expr = text::parse(src).map_err(|d| ParseError {
+        parameters: parameters.clone(),
+        diagnostics: vec![d],
+        show_supported: false,
+    })?;
     let mut arena = sym::Arena::default();
     let mut low = lower::Lowerer::new(&mut arena, inputs);
     low.inputs_are = "the parameters given";
     let psi = low.expr(&expr);
     let show_supported = low.errors.iter().any(|e| e.wants_supported_list);
     let used = low.used.clone();
-    diagnostics.extend(low.errors.drain(..).map(|e| Diagnostic {
-        span: e.span,
-        message: e.message,
-    }));
-    if !diagnostics.is_empty() {
+    let diagnostics: Vec<Diagnostic> = low
+        .errors
+        .drain(..)
+        .map(|e| Diagnostic {
+            span: e.span,
+            message: e.message,
+        })
+        .collect();
+    if !diagnostics.is_empty() || !parameters.is_empty() {
         return Err(ParseError {
+            parameters,
             diagnostics,
             show_supported,
         });
     }
     Ok(Source {
-        expr,
         compiled: Compiled::new(arena, psi, inputs.len()),
         used_inputs: used[..inputs.len()].to_vec(),
     })

@@ -236,7 +236,6 @@ macro_rules! exec_loop {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Program {
     n_inputs: usize,
-    consts: Vec<f64>,
     /// The register file as a call starts it: the constants in place, zeros elsewhere (as long as the
     /// register tier, so that the copy has a length known at compile time).
     template: Vec<f64>,
@@ -361,7 +360,6 @@ impl Program {
         template[slots..slots + consts.len()].copy_from_slice(&consts);
         Some(Self {
             n_inputs: slots,
-            consts,
             template,
             code,
             outputs,

@@ -192,15 +192,6 @@ impl<const N: usize> RuntimePsi<N> {
     pub fn hoisted(&self) -> usize {
         self.tape.n_params
     }
-
-    /// Instructions of the ψ, (ψ, ψ′) and (ψ, ψ′, ψ″) programs.
-    pub fn program_lengths(&self) -> [usize; 3] {
-        [
-            self.tape.value.len(),
-            self.tape.first.len(),
-            self.tape.full.len(),
-        ]
-    }
 }
 
 /// Whether `expr`, compiled with the parameters `names`, reads the parameter `name` (false when it does not
@@ -224,6 +215,8 @@ fn inputs(values: &[ParamValue], q: &HingeQuantities, buf: &mut [f64; 64]) -> us
         };
         n += 1;
     }
+    // The provided names in `hinge_symbolic::lower::PROVIDED` order (tested name by name in
+    // tests/tests/runtime_psi.rs).
     for x in [
         q.theta_bar,
         q.a,
