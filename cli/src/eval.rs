@@ -116,7 +116,8 @@ pub struct EvalArgs {
     /// refactored, per_hinge or autodiff.
     #[arg(long, default_value = "refactored")]
     method: String,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default: all logical CPUs; a larger count is clamped to them with a warning on
+    /// stderr).
     #[arg(long)]
     threads: Option<usize>,
     /// Output directory for gradient.txt and hessian.mtx.
@@ -299,11 +300,9 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         Some(p) => crate::read_deformed(&rest, p)?,
         None => rest.clone(),
     };
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 {
-        return Err("--threads must be at least 1".into());
+    let (threads, warning) = hinge_cli::limits::threads(args.threads)?;
+    if let Some(w) = warning {
+        eprintln!("{w}");
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)

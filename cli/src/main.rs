@@ -57,7 +57,7 @@ enum Command {
     Report(report::ReportArgs),
     /// Stability on stiff and extreme cases: a table of cases, each passing or failing with its figures.
     Stability(stability::StabilityArgs),
-    /// List the built-in scenes, or print one's TOML (`hinge scenes show NAME`).
+    /// List the built-in scenes with one line each, or print one's TOML (`hinge scenes show NAME`).
     Scenes {
         /// `show`
         action: Option<String>,
@@ -92,20 +92,26 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
-        None => run::run(run::RunArgs {
+        None => run_job(run::RunArgs {
             scene: "drape".into(),
             ..run::RunArgs::default()
         }),
         Some(Command::Stats { rest, deformed, n }) => stats(rest, deformed, n),
         Some(Command::Eval(args)) => eval::run(args),
         Some(Command::Bench(args)) => bench::run(args),
-        Some(Command::Run(args)) => run::run(args),
+        Some(Command::Run(args)) => run_job(args),
         Some(Command::Report(args)) => report::run(args),
         Some(Command::Stability(args)) => stability::run(args),
         Some(Command::Scenes { action, name }) => scenes(action.as_deref(), name.as_deref()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(message) if message == INTERRUPTED => {
+            eprintln!(
+                "hinge: interrupted (Ctrl-C) after a completed frame; summary.json is marked interrupted"
+            );
+            ExitCode::from(130)
+        }
         Err(message) => {
             eprintln!("hinge: {message}");
             ExitCode::FAILURE
@@ -113,11 +119,27 @@ fn main() -> ExitCode {
     }
 }
 
+/// The message [`run_job`] returns for an interrupted run (exit code 130).
+const INTERRUPTED: &str = "\0interrupted";
+
+/// `hinge run`, with an interrupted run as the error [`INTERRUPTED`].
+fn run_job(args: run::RunArgs) -> Result<(), String> {
+    match run::run(args)? {
+        run::Completion::Finished => Ok(()),
+        run::Completion::Interrupted => Err(INTERRUPTED.into()),
+    }
+}
+
 fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
     match (action, name) {
         (None, _) => {
-            for (n, _) in scene::BUILT_IN {
-                println!("{n}");
+            let width = scene::BUILT_IN
+                .iter()
+                .map(|(n, _)| n.len())
+                .max()
+                .unwrap_or(0);
+            for (n, text) in scene::BUILT_IN {
+                println!("{n:width$}  {}", scene::description(text));
             }
             Ok(())
         }

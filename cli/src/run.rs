@@ -6,6 +6,7 @@
 
 use std::io::Write;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use clap::Args;
@@ -39,13 +40,16 @@ pub struct RunArgs {
     /// Built-in scene name (`hinge scenes` lists them) or a scene TOML file.
     #[arg(default_value = "drape")]
     pub scene: String,
-    /// Frames to simulate (default: the scene's).
+    /// Frames to simulate (default: the scene's; at most 6 000 000, and the frames written must fit on the
+    /// output directory's disk).
     #[arg(long)]
     pub frames: Option<usize>,
-    /// Grid cells along x (y scaled alike; default: the scene's).
+    /// Mesh resolution; what it means depends on the scene's mesh: for a grid, the cells along x (y scaled
+    /// alike); for a scene with listed resolutions (the beams), a level 1, 2, 3, …; for an icosphere, the
+    /// subdivision level 0–7 (default: the scene's).
     #[arg(long)]
     pub resolution: Option<usize>,
-    /// Worker threads (default: all cores).
+    /// Worker threads (default: all logical CPUs; a larger count is clamped to them with a warning).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Output directory (default: out/NAME).
@@ -56,6 +60,9 @@ pub struct RunArgs {
     pub no_frames: bool,
     /// Solve for the static equilibrium (Newton on the potential energy, no inertia or damping) instead of
     /// stepping frames; writes one frame, `static.obj`.
+    ///
+    /// Frames: `frame_0000.obj` is the rest state, `frame_k.obj` the state after step k. Ctrl-C ends the run
+    /// after the current frame, writes `summary.json` with `"interrupted": true` and exits with code 130.
     #[arg(long = "static")]
     pub statics: bool,
 }
@@ -97,6 +104,8 @@ pub struct RunSummary {
     pub max_final_gradient_norm: f64,
     /// The smallest accepted substep as a fraction of the frame's dt.
     pub smallest_substep_fraction: f64,
+    /// The run was stopped (Ctrl-C) before its last frame; `frames` counts the frames completed.
+    pub interrupted: bool,
 }
 
 impl RunSummary {
@@ -300,6 +309,7 @@ pub fn equilibrium(
         substeps: 0,
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
+        interrupted: false,
     };
     summary.add_timings(&mut system);
     if let Some(dir) = out {
@@ -333,7 +343,8 @@ where
     })
 }
 
-/// Simulates `scene` from rest `rest` with implicit Euler; writes frames to `out` when given.
+/// Simulates `scene` from rest `rest` with implicit Euler; writes frames to `out` when given
+/// (`frame_0000.obj` the rest state, `frame_k.obj` the state after step k).
 ///
 /// # Errors
 /// A one-line message (a failed step names the frame and the solver's diagnostics).
@@ -341,6 +352,21 @@ pub fn simulate(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<&std::path::Path>,
+    progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
+) -> Result<RunSummary, String> {
+    simulate_until(scene, rest, out, None, progress)
+}
+
+/// [`simulate`], stopping after the first frame that ends with `stop` set (the summary is then marked
+/// [`RunSummary::interrupted`] and counts the frames completed).
+///
+/// # Errors
+/// As [`simulate`].
+pub fn simulate_until(
+    scene: &Scene,
+    rest: &TriMesh,
+    out: Option<&std::path::Path>,
+    stop: Option<&AtomicBool>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
@@ -374,7 +400,16 @@ pub fn simulate(
         substeps: 0,
         max_final_gradient_norm: 0.0,
         smallest_substep_fraction: 1.0,
+        interrupted: false,
     };
+    let write_frame = |k: usize, x: &[Vector3<f64>]| -> Result<(), String> {
+        match out {
+            Some(dir) => write_obj(dir.join(format!("frame_{k:04}.obj")), x, rest.triangles())
+                .map_err(|e| e.to_string()),
+            None => Ok(()),
+        }
+    };
+    write_frame(0, &x)?;
     let policy = SubstepPolicy {
         max_halvings: scene.solver.max_substep_halvings,
     };
@@ -403,15 +438,13 @@ pub fn simulate(
             summary.smallest_substep_fraction.min(fs.smallest_fraction);
         summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
         summary.add_timings(&mut system);
-        if let Some(dir) = out {
-            write_obj(
-                dir.join(format!("frame_{frame:04}.obj")),
-                &x,
-                rest.triangles(),
-            )
-            .map_err(|e| e.to_string())?;
-        }
+        write_frame(frame + 1, &x)?;
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
+        if stop.is_some_and(|s| s.load(Ordering::SeqCst)) && frame + 1 < scene.frames {
+            summary.frames = frame + 1;
+            summary.interrupted = true;
+            break;
+        }
     }
     summary.min_clearance = min_clearance(&spheres, &x);
     summary.far_end_drop = far_end_drop(rest, &x);
@@ -420,54 +453,88 @@ pub fn simulate(
     Ok(summary)
 }
 
+/// How `hinge run` ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Completion {
+    /// Every frame (or the static solve) was done.
+    Finished,
+    /// Ctrl-C stopped the run after a frame; `summary.json` says `"interrupted": true`.
+    Interrupted,
+}
+
+/// Set by the Ctrl-C handler: the frame loop stops after the current frame.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Installs the Ctrl-C handler (once per process): the first Ctrl-C asks the run to stop after the current
+/// frame, a second one exits at once with code 130.
+fn install_interrupt_handler() {
+    // An error means a handler is already installed (an earlier run in this process): keep it.
+    let _ = ctrlc::try_set_handler(|| {
+        if INTERRUPTED.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
+}
+
 /// Runs `hinge run`.
-pub fn run(args: RunArgs) -> Result<(), String> {
+///
+/// # Errors
+/// A one-line message (scene, arguments, disk space, a failed frame).
+pub fn run(args: RunArgs) -> Result<Completion, String> {
     let (mut scene, base) = crate::scene::load(&args.scene)?;
     if let Some(f) = args.frames {
-        if f == 0 {
-            return Err("--frames must be at least 1".into());
-        }
-        scene.frames = f;
+        scene.frames = crate::limits::frames(f)?;
     }
     if let Some(r) = args.resolution {
         scene.set_resolution(r)?;
     }
     let rest = scene.rest_mesh(base.as_deref())?;
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 {
-        return Err("--threads must be at least 1".into());
+    let (threads, warning) = crate::limits::threads(args.threads)?;
+    if let Some(w) = warning {
+        eprintln!("{w}");
     }
     let out = args
         .out
         .clone()
         .unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    if !args.no_frames {
+        let files = if args.statics { 1 } else { scene.frames + 1 };
+        let bytes = (files as u64).saturating_mul(crate::limits::obj_frame_bytes(
+            rest.n_vertices(),
+            rest.n_triangles(),
+        ));
+        crate::limits::disk_space(&out, bytes, &format!("{files} frame files"))?;
+    }
+    install_interrupt_handler();
+    INTERRUPTED.store(false, Ordering::SeqCst);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .map_err(|e| e.to_string())?;
+    let what = if args.statics {
+        "static equilibrium (Newton on the potential energy)".to_string()
+    } else {
+        format!("{} frames of {:.4} s", scene.frames, scene.dt)
+    };
     println!(
-        "hinge run {}: {} vertices, {} triangles, {} frames of {:.4} s, {threads} threads → {}",
+        "hinge run {}: {} vertices, {} triangles, {what}, {threads} threads → {}",
         scene.name,
         rest.n_vertices(),
         rest.n_triangles(),
-        scene.frames,
-        scene.dt,
         out.display()
     );
     let frames_dir = (!args.no_frames).then_some(out.as_path());
     let frames = scene.frames;
     let summary = if args.statics {
-        println!("static equilibrium (Newton on the potential energy)");
         pool.install(|| equilibrium(&scene, &rest, frames_dir))?
     } else {
         pool.install(|| {
-            simulate(
+            simulate_until(
                 &scene,
                 &rest,
                 frames_dir,
+                Some(&INTERRUPTED),
                 |frame, fs, seconds, _| {
                     println!(
                         "frame {:>4}/{frames}: {} Newton iterations, {} factorizations, {} substep{}, {:.1} ms",
@@ -504,6 +571,7 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         "far_end_drop": summary.far_end_drop,
         "max_speed": summary.max_speed,
         "static": args.statics,
+        "interrupted": summary.interrupted,
     });
     let path = out.join("summary.json");
     std::fs::write(
@@ -511,9 +579,15 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?,
     )
     .map_err(|e| format!("{}: {e}", path.display()))?;
+    let done = if args.statics {
+        "static equilibrium".to_string()
+    } else if summary.interrupted {
+        format!("interrupted after {} of {frames} frames", summary.frames)
+    } else {
+        format!("{} frames", summary.frames)
+    };
     println!(
-        "done: {} frames, {} Newton iterations ({} line-search halvings, {} factorizations, {} substeps, largest final gradient norm {:.2e}); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
-        summary.frames,
+        "done: {done}, {} Newton iterations ({} line-search halvings, {} factorizations, {} substeps, largest final gradient norm {:.2e}); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
         summary.newton_iterations,
         summary.line_search_steps,
         summary.factorizations,
@@ -531,5 +605,9 @@ pub fn run(args: RunArgs) -> Result<(), String> {
         "far end dropped {:.4e} m; largest speed {:.2e} m/s",
         summary.far_end_drop, summary.max_speed
     );
-    Ok(())
+    Ok(if summary.interrupted {
+        Completion::Interrupted
+    } else {
+        Completion::Finished
+    })
 }

@@ -21,6 +21,22 @@ pub const BUILT_IN: [(&str, &str); 7] = [
     ("beam5", include_str!("../scenes/beam5.toml")),
 ];
 
+/// The one-line description of a scene's TOML text: the first sentence of its leading comment, without the
+/// `NAME (…):` it starts with (empty when the text has no leading comment).
+pub fn description(text: &str) -> String {
+    let comment: Vec<&str> = text
+        .lines()
+        .map_while(|l| l.strip_prefix('#'))
+        .map(str::trim)
+        .collect();
+    let joined = comment.join(" ");
+    let body = joined.split_once(": ").map_or(joined.as_str(), |(_, b)| b);
+    match body.find(". ") {
+        Some(end) => body[..=end].to_string(),
+        None => body.to_string(),
+    }
+}
+
 /// A scene.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -41,7 +41,10 @@ fn default_job_runs_the_drape() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("out/drape/summary.json")).unwrap())
             .unwrap();
     assert_eq!(summary["frames"], 90);
-    assert!(dir.join("out/drape/frame_0089.obj").exists());
+    // The rest state is frame 0, step k is frame k.
+    assert!(dir.join("out/drape/frame_0000.obj").exists());
+    assert!(dir.join("out/drape/frame_0090.obj").exists());
+    assert!(!dir.join("out/drape/frame_0091.obj").exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -66,13 +69,18 @@ fn drape_rests_on_the_sphere() {
     let clearance = summary["min_clearance_to_sphere"].as_f64().unwrap();
     assert!(clearance > -1e-3, "clearance {clearance}");
     // The centre vertex rests on top of the sphere, at the contact margin; the corners hang below it.
-    let last = hinge_core::obj::read_obj(dir.join("frame_0059.obj")).unwrap();
+    let last = hinge_core::obj::read_obj(dir.join("frame_0060.obj")).unwrap();
     let x = last.positions();
     let centre = x[x.len() / 2];
     assert!((centre.z - 0.255).abs() < 3e-3, "centre at {centre}");
     assert!(x[0].z < 0.0, "corner at {}", x[0]);
-    // Every frame was written; bad arguments are one-line errors.
-    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 61);
+    // Every frame was written (the rest state as frame 0); bad arguments are one-line errors.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 62);
+    let first = hinge_core::obj::read_obj(dir.join("frame_0000.obj")).unwrap();
+    let (rest, _) = hinge_cli::scene::load("drape").unwrap();
+    let mut rest = rest;
+    rest.set_resolution(10).unwrap();
+    assert_eq!(first.positions(), rest.rest_mesh(None).unwrap().positions());
     let bad = hinge(&["run", "nosuchscene"]);
     assert!(!bad.status.success());
     assert_eq!(
@@ -122,7 +130,9 @@ fn eval_round_trip_matches_the_library() {
         "round-trip precision"
     );
     assert_eq!(json["n_hinges"], 19040);
-    assert_eq!(json["threads"], 2);
+    // --threads 2, clamped to the CPUs on a one-CPU machine.
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    assert_eq!(json["threads"], 2.min(cpus));
     let grad: Vec<f64> = std::fs::read_to_string(dir.join("gradient.txt"))
         .unwrap()
         .lines()
@@ -324,8 +334,24 @@ fn scenes_are_listed_shown_and_validated() {
     let list = hinge(&["scenes"]);
     assert!(list.status.success());
     let names = String::from_utf8_lossy(&list.stdout).to_string();
+    // One line per scene: its name, then a description.
+    for line in names.lines() {
+        let (name, description) = line.split_once("  ").unwrap();
+        assert!(description.trim().len() > 20, "{name}: {description}");
+        assert!(
+            !description.contains('#') && !description.contains(name.trim()),
+            "{line}"
+        );
+    }
+    assert!(
+        names.contains("drape       a square cloth falls onto a static sphere."),
+        "{names}"
+    );
     assert_eq!(
-        names.split_whitespace().collect::<Vec<_>>(),
+        names
+            .lines()
+            .map(|l| l.split_whitespace().next().unwrap())
+            .collect::<Vec<_>>(),
         [
             "drape",
             "shell-drop",
@@ -694,10 +720,19 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("frame ") && err.contains("dt/2"), "{err}");
+    // The frames before the failed one are written, the failed one is not.
+    let failed: usize = err
+        .split("frame ")
+        .nth(1)
+        .and_then(|t| t.split(':').next())
+        .and_then(|k| k.parse().ok())
+        .unwrap_or_else(|| panic!("no frame number in {err}"));
+    assert!(failed > 1, "{err}");
     assert!(
-        out.join("frame_0000.obj").exists(),
-        "the good frames are written"
+        out.join(format!("frame_{:04}.obj", failed - 1)).exists(),
+        "the last good frame is written"
     );
+    assert!(!out.join(format!("frame_{failed:04}.obj")).exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -718,7 +753,7 @@ fn shell_drop_falls_onto_the_plane_and_rests_there() {
     assert_eq!(summary["frames"], 60);
     assert_eq!(summary["n_vertices"], 162);
     assert!(summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6);
-    let last = hinge_core::obj::read_obj(dir.join("frame_0059.obj")).unwrap();
+    let last = hinge_core::obj::read_obj(dir.join("frame_0060.obj")).unwrap();
     let zmin = last
         .positions()
         .iter()
@@ -933,5 +968,108 @@ fn custom_psi_scenes_run_like_the_builtin() {
         assert!(err.contains(want), "{i}: {err}");
         assert_eq!(err.trim().lines().count(), 1, "{i}: {err}");
     }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn thread_and_frame_limits_and_interrupts() {
+    let dir = tmp("limits");
+    let out = dir.join("out");
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // Far more threads than CPUs: clamped with one warning line, and the run returns at once.
+    let t = std::time::Instant::now();
+    let o = hinge(&[
+        "run",
+        "drape",
+        "--threads",
+        "100000",
+        "--frames",
+        "2",
+        "--resolution",
+        "6",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(t.elapsed().as_secs() < 60);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("warning") && err.contains(&format!("using {cpus}")),
+        "{err}"
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains(&format!("{cpus} threads")));
+    // Frame counts beyond the cap, and frames that do not fit on the disk: one line, nothing written.
+    for (frames, words) in [("99999999999", "limit"), ("5999999", "free")] {
+        let out = dir.join(format!("big{frames}"));
+        let o = hinge(&[
+            "run",
+            "shell-drop",
+            "--frames",
+            frames,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        // (On a disk with over 1.5 TiB free the second run would start: skip it then.)
+        if words == "free" && o.status.success() {
+            continue;
+        }
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains(words), "{err}");
+        assert!(!out.join("frame_0000.obj").exists());
+    }
+    // SIGINT during a run: it stops after the current frame, writes the summary marked interrupted, and
+    // exits with 130.
+    use std::io::BufRead;
+    let out = dir.join("interrupted");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hinge"))
+        .args([
+            "run",
+            "drape",
+            "--frames",
+            "5000",
+            "--resolution",
+            "10",
+            "--out",
+        ])
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    // Wait for the third frame, then interrupt.
+    for line in lines.by_ref() {
+        if line.unwrap().starts_with("frame    3/") {
+            break;
+        }
+    }
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
+    let status = child.wait().unwrap();
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["interrupted"], true);
+    let frames = summary["frames"].as_u64().unwrap();
+    assert!((3..5000).contains(&frames), "{frames}");
+    assert!(out.join(format!("frame_{frames:04}.obj")).exists());
+    assert!(!out.join(format!("frame_{:04}.obj", frames + 1)).exists());
+    assert!(
+        rest.iter()
+            .any(|l| l.starts_with(&format!("done: interrupted after {frames} of 5000 frames"))),
+        "{rest:?}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
