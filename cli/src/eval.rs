@@ -8,7 +8,7 @@ use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::ParamValue;
-use hinge_core::{TriMesh, export, obj};
+use hinge_core::{TriMesh, export};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::gravity::{Gravity, lumped_masses};
@@ -97,10 +97,10 @@ pub const ENERGIES: [EnergyEntry; 11] = [
 /// Arguments of `hinge eval`.
 #[derive(Args)]
 pub struct EvalArgs {
-    /// Rest mesh (OBJ).
+    /// Rest mesh (OBJ, OFF or PLY, by extension).
     #[arg(long, required_unless_present = "list_energies")]
     rest: Option<PathBuf>,
-    /// Deformed mesh (OBJ with the same vertices and triangles); default: the rest mesh.
+    /// Deformed mesh (a mesh file with the same vertices and faces); default: the rest mesh.
     #[arg(long)]
     deformed: Option<PathBuf>,
     /// Energy name (see --list-energies).
@@ -295,7 +295,7 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
     } else {
         parse_params(energy, &args.params)?
     };
-    let rest = obj::read_obj(rest_path).map_err(|e| e.to_string())?;
+    let rest = hinge_cli::files::read(rest_path)?;
     let deformed = match &args.deformed {
         Some(p) => crate::read_deformed(&rest, p)?,
         None => rest.clone(),

@@ -58,6 +58,21 @@ pub fn obj_frame_bytes(n_vertices: usize, n_triangles: usize) -> u64 {
     (n_vertices * vertex + n_triangles * face) as u64
 }
 
+/// The size in bytes of one frame file in `format` (an upper bound; PLY is binary: 24 bytes per vertex,
+/// 13 per triangle).
+pub fn frame_bytes(
+    format: hinge_core::meshio::MeshFormat,
+    n_vertices: usize,
+    n_triangles: usize,
+) -> u64 {
+    use hinge_core::meshio::MeshFormat;
+    match format {
+        MeshFormat::Ply => 512 + 24 * n_vertices as u64 + 13 * n_triangles as u64,
+        // OFF writes what OBJ writes, with 0-based indices.
+        MeshFormat::Obj | MeshFormat::Off => obj_frame_bytes(n_vertices, n_triangles),
+    }
+}
+
 /// Checks that `bytes` more bytes fit on the file system of `dir` (which must exist).
 ///
 /// # Errors

@@ -19,7 +19,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use hinge_core::hinge::HingeFrames;
-use hinge_core::{Topology, TriMesh, grid, obj};
+use hinge_core::{Topology, TriMesh, grid};
 
 #[derive(Parser)]
 #[command(
@@ -36,10 +36,10 @@ struct Cli {
 enum Command {
     /// Topology and hinge-angle statistics of a mesh.
     Stats {
-        /// Rest mesh (OBJ). Default: an N×N unit grid.
+        /// Rest mesh (OBJ, OFF or PLY, by extension). Default: an N×N unit grid.
         #[arg(long)]
         rest: Option<std::path::PathBuf>,
-        /// Deformed positions (OBJ with the same vertices). Default: the rest grid under the wave
+        /// Deformed positions (a mesh file with the same vertices and faces). Default: the rest grid under the wave
         /// z = 0.1·sin(3x)·cos(2y), or the rest mesh itself when --rest is given.
         #[arg(long)]
         deformed: Option<std::path::PathBuf>,
@@ -160,9 +160,9 @@ fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
     }
 }
 
-/// Reads a deformed state of `rest` from an OBJ file with the same triangles.
+/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY) with the same triangles.
 pub(crate) fn read_deformed(rest: &TriMesh, path: &std::path::Path) -> Result<TriMesh, String> {
-    let d = obj::read_obj(path).map_err(|e| e.to_string())?;
+    let d = hinge_cli::files::read(path)?;
     if d.triangles() != rest.triangles() {
         return Err(format!(
             "{}: its triangles differ from the rest mesh's",
@@ -179,10 +179,7 @@ fn stats(
     n: usize,
 ) -> Result<(), String> {
     let (mesh, label) = match &rest {
-        Some(p) => (
-            obj::read_obj(p).map_err(|e| e.to_string())?,
-            p.display().to_string(),
-        ),
+        Some(p) => (hinge_cli::files::read(p)?, p.display().to_string()),
         None => (
             grid::unit_grid(n).map_err(|e| format!("default grid: {e}"))?,
             format!("default {n}×{n} unit grid"),

@@ -13,8 +13,8 @@ use clap::Args;
 use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::meshio::{MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::obj::write_obj;
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
     Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, plate_consistent_stiffness,
@@ -55,14 +55,19 @@ pub struct RunArgs {
     /// Output directory (default: out/NAME).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Do not write OBJ frames (summary only).
+    /// Do not write frames or pictures (summary only).
     #[arg(long)]
     pub no_frames: bool,
+    /// Frame file format: `obj` or `ply` (binary little endian).
+    #[arg(long, default_value = "obj")]
+    pub format: String,
     /// Solve for the static equilibrium (Newton on the potential energy, no inertia or damping) instead of
-    /// stepping frames; writes one frame, `static.obj`.
+    /// stepping frames; writes one frame, `static.obj` (or `.ply`).
     ///
-    /// Frames: `frame_0000.obj` is the rest state, `frame_k.obj` the state after step k. Ctrl-C ends the run
-    /// after the current frame, writes `summary.json` with `"interrupted": true` and exits with code 130.
+    /// Frames: `frame_0000.obj` is the rest state, `frame_k.obj` the state after step k; beside them
+    /// `animation.png` (an animated PNG of every k-th frame, at most 60), `final.png` (the last frame) and
+    /// `obstacles.obj`. Ctrl-C ends the run after the current frame, writes `summary.json` with
+    /// `"interrupted": true` and exits with code 130.
     #[arg(long = "static")]
     pub statics: bool,
 }
@@ -262,14 +267,14 @@ fn min_clearance(spheres: &[(Vector3<f64>, f64)], x: &[Vector3<f64>]) -> Option<
 pub const STATIC_ITERATIONS: usize = 2000;
 
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
-/// `static.obj` to `out` when given.
+/// `static.obj` (or the output's format) and, when asked, its pictures to `out` when given.
 ///
 /// # Errors
 /// A one-line message with the solver's diagnostics.
 pub fn equilibrium(
     scene: &Scene,
     rest: &TriMesh,
-    out: Option<&std::path::Path>,
+    out: Option<Output<'_>>,
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
     let Built {
@@ -312,11 +317,55 @@ pub fn equilibrium(
         interrupted: false,
     };
     summary.add_timings(&mut system);
-    if let Some(dir) = out {
-        write_obj(dir.join("static.obj"), &x, rest.triangles()).map_err(|e| e.to_string())?;
+    if let Some(o) = out {
+        let name = format!("static.{}", o.format.extension());
+        write_mesh(o.dir.join(name), &x, rest.triangles()).map_err(|e| e.to_string())?;
+        if o.pictures {
+            write_pictures(o.dir, scene, &[x.clone()], rest.triangles(), 1.0)?;
+        }
     }
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
+}
+
+/// The obstacles of a scene as shapes to draw.
+pub fn shapes(scene: &Scene) -> Vec<crate::view::Shape> {
+    scene
+        .obstacles
+        .iter()
+        .filter_map(|o| match (o.center, o.radius, o.point, o.normal) {
+            (Some(c), Some(r), _, _) => Some(crate::view::Shape::Sphere(Vector3::from(c), r)),
+            (_, _, Some(p), Some(n)) => Some(crate::view::Shape::Plane(
+                Vector3::from(p),
+                Vector3::from(n),
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Writes `animation.png` (the sampled frames, each shown for `seconds` of simulated time, looping),
+/// `final.png` (the last sample) and `obstacles.obj` to `dir`.
+///
+/// # Errors
+/// A one-line message naming the file.
+pub fn write_pictures(
+    dir: &std::path::Path,
+    scene: &Scene,
+    samples: &[Vec<Vector3<f64>>],
+    triangles: &[[usize; 3]],
+    seconds: f64,
+) -> Result<(), String> {
+    let shapes = shapes(scene);
+    let pictures = crate::view::render(samples, triangles, &shapes)?;
+    let Some(last) = pictures.last() else {
+        return Ok(());
+    };
+    // Real time, but at least 40 ms per picture (a browser's floor is about 20 ms).
+    let delay = (seconds * 1e3).round().clamp(40.0, 2000.0) as u16;
+    crate::view::write_apng(&dir.join("animation.png"), &pictures, delay)?;
+    crate::view::write_png(&dir.join("final.png"), last)?;
+    crate::view::write_obstacles(&dir.join("obstacles.obj"), &shapes, samples)
 }
 
 fn bending_term<P: HingePsi + Send + 'static>(
@@ -343,8 +392,19 @@ where
     })
 }
 
-/// Simulates `scene` from rest `rest` with implicit Euler; writes frames to `out` when given
-/// (`frame_0000.obj` the rest state, `frame_k.obj` the state after step k).
+/// Where and how a run writes its output.
+#[derive(Debug, Clone, Copy)]
+pub struct Output<'a> {
+    /// The directory.
+    pub dir: &'a std::path::Path,
+    /// The frames' format (OBJ, OFF or PLY).
+    pub format: MeshFormat,
+    /// Also write `animation.png`, `final.png` and `obstacles.obj` ([`crate::view`]).
+    pub pictures: bool,
+}
+
+/// Simulates `scene` from rest `rest` with implicit Euler; writes OBJ frames and the pictures to `out`
+/// when given (`frame_0000.obj` the rest state, `frame_k.obj` the state after step k).
 ///
 /// # Errors
 /// A one-line message (a failed step names the frame and the solver's diagnostics).
@@ -354,18 +414,23 @@ pub fn simulate(
     out: Option<&std::path::Path>,
     progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
+    let out = out.map(|dir| Output {
+        dir,
+        format: MeshFormat::Obj,
+        pictures: true,
+    });
     simulate_until(scene, rest, out, None, progress)
 }
 
-/// [`simulate`], stopping after the first frame that ends with `stop` set (the summary is then marked
-/// [`RunSummary::interrupted`] and counts the frames completed).
+/// [`simulate`] with the output's format chosen, stopping after the first frame that ends with `stop`
+/// set (the summary is then marked [`RunSummary::interrupted`] and counts the frames completed).
 ///
 /// # Errors
 /// As [`simulate`].
 pub fn simulate_until(
     scene: &Scene,
     rest: &TriMesh,
-    out: Option<&std::path::Path>,
+    out: Option<Output<'_>>,
     stop: Option<&AtomicBool>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
@@ -402,14 +467,20 @@ pub fn simulate_until(
         smallest_substep_fraction: 1.0,
         interrupted: false,
     };
-    let write_frame = |k: usize, x: &[Vector3<f64>]| -> Result<(), String> {
-        match out {
-            Some(dir) => write_obj(dir.join(format!("frame_{k:04}.obj")), x, rest.triangles())
-                .map_err(|e| e.to_string()),
-            None => Ok(()),
+    // Every `every`-th frame (and the last) goes into the animation.
+    let every = (scene.frames + 1)
+        .div_ceil(crate::view::MAX_ANIMATION_FRAMES)
+        .max(1);
+    let mut samples: Vec<Vec<Vector3<f64>>> = Vec::new();
+    let mut write_frame = |k: usize, x: &[Vector3<f64>], last: bool| -> Result<(), String> {
+        let Some(o) = out else { return Ok(()) };
+        if o.pictures && (k.is_multiple_of(every) || last) {
+            samples.push(x.to_vec());
         }
+        let name = format!("frame_{k:04}.{}", o.format.extension());
+        write_mesh(o.dir.join(name), x, rest.triangles()).map_err(|e| e.to_string())
     };
-    write_frame(0, &x)?;
+    write_frame(0, &x, false)?;
     let policy = SubstepPolicy {
         max_halvings: scene.solver.max_substep_halvings,
     };
@@ -438,13 +509,26 @@ pub fn simulate_until(
             summary.smallest_substep_fraction.min(fs.smallest_fraction);
         summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
         summary.add_timings(&mut system);
-        write_frame(frame + 1, &x)?;
+        let interrupted =
+            stop.is_some_and(|s| s.load(Ordering::SeqCst)) && frame + 1 < scene.frames;
+        // The animation ends on the last frame done.
+        let last = interrupted || frame + 1 == scene.frames;
+        write_frame(frame + 1, &x, last)?;
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
-        if stop.is_some_and(|s| s.load(Ordering::SeqCst)) && frame + 1 < scene.frames {
+        if interrupted {
             summary.frames = frame + 1;
             summary.interrupted = true;
             break;
         }
+    }
+    if let Some(o) = out.filter(|o| o.pictures) {
+        write_pictures(
+            o.dir,
+            scene,
+            &samples,
+            rest.triangles(),
+            scene.dt * every as f64,
+        )?;
     }
     summary.min_clearance = min_clearance(&spheres, &x);
     summary.far_end_drop = far_end_drop(rest, &x);
@@ -489,6 +573,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         scene.set_resolution(r)?;
     }
     let rest = scene.rest_mesh(base.as_deref())?;
+    let format = crate::files::frame_format(&args.format)?;
     let (threads, warning) = crate::limits::threads(args.threads)?;
     if let Some(w) = warning {
         eprintln!("{w}");
@@ -500,7 +585,8 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     if !args.no_frames {
         let files = if args.statics { 1 } else { scene.frames + 1 };
-        let bytes = (files as u64).saturating_mul(crate::limits::obj_frame_bytes(
+        let bytes = (files as u64).saturating_mul(crate::limits::frame_bytes(
+            format,
             rest.n_vertices(),
             rest.n_triangles(),
         ));
@@ -524,7 +610,11 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         rest.n_triangles(),
         out.display()
     );
-    let frames_dir = (!args.no_frames).then_some(out.as_path());
+    let frames_dir = (!args.no_frames).then_some(Output {
+        dir: out.as_path(),
+        format,
+        pictures: true,
+    });
     let frames = scene.frames;
     let summary = if args.statics {
         pool.install(|| equilibrium(&scene, &rest, frames_dir))?

@@ -93,7 +93,7 @@ pub struct MeshSpec {
     /// `forward`, `backward` or `alternating`.
     #[serde(default = "default_diagonal")]
     pub diagonal: String,
-    /// An OBJ file instead of a grid (relative to the scene file).
+    /// A mesh file instead of a grid (OBJ, OFF or PLY by extension; relative to the scene file).
     pub obj: Option<PathBuf>,
     /// A closed surface generated in code instead of a grid: `icosphere` (a subdivided icosahedron centred
     /// at `origin`, `10·4^subdivisions + 2` vertices; `--resolution N` sets the subdivisions).
@@ -668,11 +668,11 @@ impl Scene {
     /// The rest mesh.
     ///
     /// # Errors
-    /// A one-line message (unreadable or invalid OBJ, invalid grid).
+    /// A one-line message (unreadable or invalid mesh file, invalid grid).
     pub fn rest_mesh(&self, base: Option<&Path>) -> Result<TriMesh, String> {
         if let Some(obj) = &self.mesh.obj {
             let path = base.map_or(obj.clone(), |b| b.join(obj));
-            return hinge_core::obj::read_obj(&path).map_err(|e| e.to_string());
+            return crate::files::read(&path);
         }
         let o = Vector3::from(self.mesh.origin);
         if self.mesh.shape.is_some() {

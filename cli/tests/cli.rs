@@ -19,6 +19,41 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// Decodes a PNG or APNG: width, height and every frame as RGB bytes.
+fn decode_apng(path: &Path) -> (u32, u32, Vec<Vec<u8>>) {
+    let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let (w, h) = (reader.info().width, reader.info().height);
+    let frames = reader
+        .info()
+        .animation_control()
+        .map_or(1, |a| a.num_frames as usize);
+    let mut out = Vec::new();
+    for _ in 0..frames {
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (w, h), "full frames");
+        assert_eq!(info.color_type, png::ColorType::Rgb);
+        buf.truncate(info.buffer_size());
+        out.push(buf);
+    }
+    (w, h, out)
+}
+
+/// Pixels of the mesh's colour (orange: red well above green and blue) and of the sphere's (blue).
+fn colours(rgb: &[u8]) -> (usize, usize) {
+    let (mut mesh, mut sphere) = (0, 0);
+    for p in rgb.chunks(3) {
+        let (r, g, b) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
+        if r > g + 40 && r > b + 40 {
+            mesh += 1;
+        } else if b > r + 40 {
+            sphere += 1;
+        }
+    }
+    (mesh, sphere)
+}
+
 fn data(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../tests/data")
@@ -74,8 +109,32 @@ fn drape_rests_on_the_sphere() {
     let centre = x[x.len() / 2];
     assert!((centre.z - 0.255).abs() < 3e-3, "centre at {centre}");
     assert!(x[0].z < 0.0, "corner at {}", x[0]);
-    // Every frame was written (the rest state as frame 0); bad arguments are one-line errors.
-    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 62);
+    // Every frame was written (the rest state as frame 0), with the summary, the animation, the last
+    // picture and the obstacles; bad arguments are one-line errors.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 65);
+    // The animation: every 2nd of the 61 frames (at most 60 pictures), 400 × 300; at the end the cloth
+    // covers the sphere it hangs over: less than half of the sphere's pixels of the first picture (where the
+    // flat cloth above it hides part of it) remain visible, and the cloth has four times as many.
+    let (w, h, pictures) = decode_apng(&dir.join("animation.png"));
+    assert_eq!((w, h, pictures.len()), (400, 300, 31));
+    let (cloth0, sphere0) = colours(&pictures[0]);
+    let (cloth, sphere) = colours(pictures.last().unwrap());
+    println!("cloth/sphere pixels: first {cloth0}/{sphere0}, last {cloth}/{sphere}");
+    assert!(sphere0 > 2000 && cloth0 > 1000, "{cloth0} {sphere0}");
+    assert!(
+        sphere * 2 < sphere0 && cloth > 4 * sphere,
+        "{cloth} {sphere}"
+    );
+    let (fw, fh, last) = decode_apng(&dir.join("final.png"));
+    assert_eq!((fw, fh), (400, 300));
+    assert_eq!(&last[0], pictures.last().unwrap());
+    let obstacles = hinge_core::obj::read_obj(dir.join("obstacles.obj")).unwrap();
+    let off = obstacles
+        .positions()
+        .iter()
+        .map(|p| (p.norm() - 0.25).abs())
+        .fold(0.0, f64::max);
+    assert!(off < 1e-12, "the sphere's mesh lies on the sphere: {off}");
     let first = hinge_core::obj::read_obj(dir.join("frame_0000.obj")).unwrap();
     let (rest, _) = hinge_cli::scene::load("drape").unwrap();
     let mut rest = rest;
@@ -1070,6 +1129,159 @@ fn thread_and_frame_limits_and_interrupts() {
         rest.iter()
             .any(|l| l.starts_with(&format!("done: interrupted after {frames} of 5000 frames"))),
         "{rest:?}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn mesh_formats_through_the_command_line() {
+    use hinge_core::meshio::{PlyEncoding, write_mesh, write_ply_to};
+    let dir = tmp("formats");
+    let rest = hinge_core::obj::read_obj(data("grid80_rest.obj")).unwrap();
+    let def = hinge_core::obj::read_obj(data("grid80_jitter.obj")).unwrap();
+    let energy = |rest: &str, deformed: &str| {
+        let o = hinge(&[
+            "eval",
+            "--rest",
+            rest,
+            "--deformed",
+            deformed,
+            "--energy",
+            "tan-bending",
+            "--out",
+            dir.join("eval").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.stderr.is_empty(),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        json["energy"].as_f64().unwrap()
+    };
+    let reference = energy(&data("grid80_rest.obj"), &data("grid80_jitter.obj"));
+    // The same meshes as OFF, binary PLY (both byte orders) and ASCII PLY: the same energy, bitwise.
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    write_mesh(path("rest.off"), rest.positions(), rest.triangles()).unwrap();
+    write_mesh(path("def.ply"), def.positions(), def.triangles()).unwrap();
+    let mut be = Vec::new();
+    write_ply_to(
+        &mut be,
+        rest.positions(),
+        rest.triangles(),
+        PlyEncoding::BinaryBigEndian,
+    )
+    .unwrap();
+    std::fs::write(path("rest_be.ply"), be).unwrap();
+    let mut ascii = Vec::new();
+    write_ply_to(
+        &mut ascii,
+        def.positions(),
+        def.triangles(),
+        PlyEncoding::Ascii,
+    )
+    .unwrap();
+    std::fs::write(path("def_ascii.PLY"), ascii).unwrap();
+    assert_eq!(energy(&path("rest.off"), &path("def.ply")), reference);
+    assert_eq!(
+        energy(&path("rest_be.ply"), &path("def_ascii.PLY")),
+        reference
+    );
+    // A quad mesh: fan-triangulated, one line on stderr saying how many.
+    let quads = "OFF\n6 2 0\n0 0 0\n1 0 0\n2 0 0\n0 1 0\n1 1 0\n2 1 0\n4 0 1 4 3\n4 1 2 5 4\n";
+    std::fs::write(path("quads.off"), quads).unwrap();
+    let o = hinge(&["stats", "--rest", &path("quads.off")]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("2 faces with more than three corners fan-triangulated"),
+        "{err}"
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("triangles 4"));
+    // Bad files: one line naming the file, exit code 1, no panic.
+    std::fs::write(path("wrong.off"), "COFFEE\n3 1 0\n").unwrap();
+    let mut truncated = Vec::new();
+    write_ply_to(
+        &mut truncated,
+        rest.positions(),
+        rest.triangles(),
+        PlyEncoding::BinaryLittleEndian,
+    )
+    .unwrap();
+    truncated.truncate(truncated.len() - 100);
+    std::fs::write(path("truncated.ply"), truncated).unwrap();
+    let png = b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\x01\x90\0\0\x01\x2c\x08\x02\0\0\0";
+    std::fs::write(path("picture.png"), png).unwrap();
+    std::fs::write(path("picture.ply"), png).unwrap();
+    std::fs::write(
+        path("range.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 9\n",
+    )
+    .unwrap();
+    std::fs::write(path("empty.obj"), "# no records\n").unwrap();
+    for (file, words) in [
+        ("wrong.off", "not `OFF`"),
+        ("truncated.ply", "truncated"),
+        ("picture.png", "unknown mesh file extension"),
+        ("picture.ply", "not a valid PLY file"),
+        (
+            "range.obj",
+            "face 2 (line 6) names vertex 9, but the file has 4 vertices",
+        ),
+        ("empty.obj", "read as OBJ, it has 0 vertices"),
+    ] {
+        let o = hinge(&["stats", "--rest", &path(file)]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{file}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{file}: {err}");
+        assert!(err.contains(file) && err.contains(words), "{file}: {err}");
+    }
+    // Frames as PLY: the rest state reads back as frame 0; a scene's mesh file may be any format.
+    let shown = hinge(&["scenes", "show", "drape"]);
+    let text =
+        String::from_utf8_lossy(&shown.stdout).replace("cells = [30, 30]", "obj = \"sheet.off\"");
+    let sheet = hinge_core::shapes::irregular_sheet(8, 8, 4).unwrap();
+    let lifted: Vec<_> = sheet
+        .positions()
+        .iter()
+        .map(|p| hinge_core::nalgebra::Vector3::new(p.x - 0.5, p.y - 0.5, 0.4))
+        .collect();
+    write_mesh(path("sheet.off"), &lifted, sheet.triangles()).unwrap();
+    std::fs::write(path("sheet.toml"), text).unwrap();
+    let out = dir.join("ply");
+    let o = hinge(&[
+        "run",
+        &path("sheet.toml"),
+        "--frames",
+        "2",
+        "--format",
+        "ply",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let first = hinge_core::meshio::read_mesh(out.join("frame_0000.ply")).unwrap();
+    assert_eq!(first.mesh.positions(), &lifted[..]);
+    assert_eq!(first.mesh.triangles(), sheet.triangles());
+    assert!(out.join("frame_0002.ply").exists() && !out.join("frame_0000.obj").exists());
+    let o = hinge(&[
+        "run",
+        "beam1",
+        "--static",
+        "--format",
+        "ply",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(hinge_core::meshio::read_mesh(out.join("static.ply")).is_ok());
+    let o = hinge(&["run", "drape", "--format", "stl"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("expected obj or ply"),
+        "{err}"
     );
     std::fs::remove_dir_all(dir).unwrap();
 }

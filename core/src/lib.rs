@@ -136,6 +136,7 @@ pub mod grid;
 pub mod hinge;
 pub mod layout;
 pub mod mesh;
+pub mod meshio;
 pub mod obj;
 pub mod pattern;
 pub mod precise;

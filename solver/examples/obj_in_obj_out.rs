@@ -1,15 +1,16 @@
-//! Bring your own mesh: read an OBJ, hang it by its lowest-x vertices under gravity (tan bending + StVK
-//! membrane, implicit Euler with damping), write the result as OBJ.
+//! Bring your own mesh: read an OBJ (or OFF, or PLY), hang it by its lowest-x vertices under gravity (tan
+//! bending + StVK membrane, implicit Euler with damping), write the result in the output's format.
 //!
-//! Run with `cargo run --release -p hinge-solver --example obj_in_obj_out [-- INPUT.obj [OUTPUT.obj]]`.
+//! Run with `cargo run --release -p hinge-solver --example obj_in_obj_out [-- INPUT.obj|.off|.ply
+//! [OUTPUT.obj|.off|.ply]]`.
 //! Without arguments it writes a small built-in mesh to `out/obj_in_obj_out/input.obj` and uses that.
 
 use std::path::PathBuf;
 
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::meshio::{read_mesh, write_mesh};
 use hinge_core::nalgebra::Vector3;
-use hinge_core::obj::{read_obj, write_obj};
 use hinge_energies::bending::{TanBending, ViscousDamping, stiffness_from_material};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
@@ -28,14 +29,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let g =
                 hinge_core::grid::grid(16, 8, 0.4, 0.2, hinge_core::grid::Diagonal::Alternating)?;
             let p = dir.join("input.obj");
-            write_obj(&p, g.positions(), g.triangles())?;
+            write_mesh(&p, g.positions(), g.triangles())?;
             p
         }
     };
     let output = args
         .get(1)
         .map_or_else(|| dir.join("output.obj"), PathBuf::from);
-    let rest = read_obj(&input)?;
+    let file = read_mesh(&input)?;
+    if file.polygons_split > 0 {
+        println!("{} polygons fan-triangulated", file.polygons_split);
+    }
+    let rest = file.mesh;
     let n = rest.n_vertices();
     println!(
         "{}: {n} vertices, {} triangles",
@@ -79,7 +84,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for _ in 0..60 {
         iterations += stepper.step(&mut system, &mut x, &mut v)?.iterations;
     }
-    write_obj(&output, &x, rest.triangles())?;
+    write_mesh(&output, &x, rest.triangles())?;
     let lowest = x.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
     println!(
         "60 steps, {iterations} Newton iterations; lowest point z = {lowest:.4} m; wrote {}",

@@ -1,0 +1,37 @@
+//! Mesh files for the command line: any of the formats of [`hinge_core::meshio`], with a note on stderr when
+//! polygons were fan-triangulated.
+
+use std::path::Path;
+
+use hinge_core::TriMesh;
+use hinge_core::meshio::{MeshFormat, read_mesh};
+
+/// Reads a mesh file (OBJ, OFF or PLY by extension); polygons with more than three corners are
+/// fan-triangulated, and one line on stderr says how many.
+///
+/// # Errors
+/// The reader's one-line message (it names the file and counts as the file does).
+pub fn read(path: &Path) -> Result<TriMesh, String> {
+    let file = read_mesh(path).map_err(|e| e.to_string())?;
+    if file.polygons_split > 0 {
+        eprintln!(
+            "hinge: {}: {} faces with more than three corners fan-triangulated ({} triangles in all)",
+            path.display(),
+            file.polygons_split,
+            file.mesh.n_triangles()
+        );
+    }
+    Ok(file.mesh)
+}
+
+/// The output format of frames: `obj` or `ply` (binary little endian).
+///
+/// # Errors
+/// A one-line message for any other name.
+pub fn frame_format(name: &str) -> Result<MeshFormat, String> {
+    match name {
+        "obj" => Ok(MeshFormat::Obj),
+        "ply" => Ok(MeshFormat::Ply),
+        other => Err(format!("--format {other}: expected obj or ply")),
+    }
+}

@@ -1,0 +1,728 @@
+//! Mesh files by extension: Wavefront OBJ, OFF and PLY (ASCII, binary little and big endian).
+//!
+//! [`read_mesh`] picks the reader from the file's extension (`.obj`, `.off`, `.ply`, any case) and keeps
+//! the file's vertex order in every format (vertex `i` of the mesh is the file's `i`-th vertex).
+//! Polygons with more than three corners are fan-triangulated (corner 0 with each following pair, in the
+//! file's order); [`MeshFile::polygons_split`] says how many were, so a front end can tell the user.
+//!
+//! Errors name the file and count as the file does: OBJ vertices and faces from 1 with the line number; OFF
+//! and PLY vertices and faces from 0 (each message says which). A file whose content does not match its
+//! extension, or that has no triangles, is an error saying which format it was read as.
+//!
+//! PLY is parsed by the `ply-rs-bw` crate (both spellings of the type names, `float`/`float32`,
+//! `double`/`float64`, …; extra properties and elements ignored); vertices need `x`, `y`, `z` of any numeric
+//! type, faces a list property `vertex_indices` (or `vertex_index`) of any integer type.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::Path;
+
+use nalgebra::Vector3;
+use thiserror::Error;
+
+use crate::error::MeshError;
+use crate::mesh::TriMesh;
+
+/// A mesh file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Wavefront OBJ (`v`, `f` records; 1-based indices).
+    Obj,
+    /// Object File Format (`OFF` header, counts, vertices, faces; 0-based indices).
+    Off,
+    /// Polygon File Format (ASCII or binary; 0-based indices).
+    Ply,
+}
+
+impl MeshFormat {
+    /// The format of a path's extension (case-insensitive), if it is one of the three.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "obj" => Some(MeshFormat::Obj),
+            "off" => Some(MeshFormat::Off),
+            "ply" => Some(MeshFormat::Ply),
+            _ => None,
+        }
+    }
+
+    /// `OBJ`, `OFF` or `PLY`.
+    pub fn name(self) -> &'static str {
+        match self {
+            MeshFormat::Obj => "OBJ",
+            MeshFormat::Off => "OFF",
+            MeshFormat::Ply => "PLY",
+        }
+    }
+
+    /// `obj`, `off` or `ply`.
+    pub fn extension(self) -> &'static str {
+        match self {
+            MeshFormat::Obj => "obj",
+            MeshFormat::Off => "off",
+            MeshFormat::Ply => "ply",
+        }
+    }
+
+    /// The first index of the format's vertex and face numbering (1 for OBJ, 0 for OFF and PLY).
+    pub fn first_index(self) -> usize {
+        match self {
+            MeshFormat::Obj => 1,
+            MeshFormat::Off | MeshFormat::Ply => 0,
+        }
+    }
+}
+
+/// A mesh read from a file.
+#[derive(Debug, Clone)]
+pub struct MeshFile {
+    /// The validated mesh (the file's vertex order; triangles in face order, polygons fanned in place).
+    pub mesh: TriMesh,
+    /// The format it was read as.
+    pub format: MeshFormat,
+    /// Faces with more than three corners, fan-triangulated.
+    pub polygons_split: usize,
+    /// For each triangle of [`MeshFile::mesh`], the file's face it comes from (0-based position among the
+    /// faces, whatever the format's own numbering).
+    pub face_of_triangle: Vec<usize>,
+}
+
+/// Why a mesh file could not be read or written.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum MeshFileError {
+    /// The file could not be opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The extension is not `.obj`, `.off` or `.ply`.
+    #[error("{path}: unknown mesh file extension (expected .obj, .off or .ply)")]
+    UnknownExtension {
+        /// The file.
+        path: String,
+    },
+    /// The content is not a valid file of the format its extension names.
+    #[error("{path}: not a valid {} file: {message}", format.name())]
+    Parse {
+        /// The file.
+        path: String,
+        /// The format it was read as.
+        format: MeshFormat,
+        /// What is wrong, and where (a line, or a vertex or face in the format's numbering).
+        message: String,
+    },
+    /// The file parsed but has no triangles.
+    #[error("{path}: read as {}, it has {vertices} vertices and no faces with three or more corners", format.name())]
+    NoTriangles {
+        /// The file.
+        path: String,
+        /// The format it was read as.
+        format: MeshFormat,
+        /// Vertices it has.
+        vertices: usize,
+    },
+    /// The file parsed, but the mesh is invalid; the message counts vertices and faces as the file does.
+    #[error("{path}: {message} ({} numbering: from {})", format.name(), format.first_index())]
+    Mesh {
+        /// The file.
+        path: String,
+        /// The format.
+        format: MeshFormat,
+        /// The mesh error in the file's numbering.
+        message: String,
+        /// The mesh error in the mesh's own (0-based, triangle) numbering.
+        source: MeshError,
+    },
+}
+
+/// Faces as read: polygons of vertex indices (already 0-based), and where they came from.
+struct Raw {
+    positions: Vec<Vector3<f64>>,
+    faces: Vec<Vec<usize>>,
+    /// 1-based lines of the vertices and faces (OBJ and OFF; empty for PLY).
+    vertex_lines: Vec<usize>,
+    face_lines: Vec<usize>,
+}
+
+/// Reads a mesh file, the format chosen by its extension.
+///
+/// # Errors
+/// [`MeshFileError`]: I/O, unknown extension, content that does not match it (with the line or element),
+/// no triangles, or an invalid mesh in the file's numbering.
+pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshFile, MeshFileError> {
+    let path = path.as_ref();
+    let name = path.display().to_string();
+    let format = MeshFormat::from_path(path)
+        .ok_or_else(|| MeshFileError::UnknownExtension { path: name.clone() })?;
+    let file = std::fs::File::open(path).map_err(|source| MeshFileError::Io {
+        path: name.clone(),
+        source,
+    })?;
+    read_mesh_from(BufReader::new(file), format, &name)
+}
+
+/// Reads a mesh of `format` from a reader; `name` is used in error messages.
+///
+/// # Errors
+/// As [`read_mesh`].
+pub fn read_mesh_from(
+    reader: impl BufRead,
+    format: MeshFormat,
+    name: &str,
+) -> Result<MeshFile, MeshFileError> {
+    let parse = |message: String| MeshFileError::Parse {
+        path: name.to_string(),
+        format,
+        message,
+    };
+    let raw = match format {
+        MeshFormat::Obj => parse_obj(reader).map_err(parse)?,
+        MeshFormat::Off => parse_off(reader).map_err(parse)?,
+        MeshFormat::Ply => parse_ply(reader).map_err(parse)?,
+    };
+    let mut triangles = Vec::with_capacity(raw.faces.len());
+    let mut face_of_triangle = Vec::with_capacity(raw.faces.len());
+    let mut polygons_split = 0;
+    for (f, poly) in raw.faces.iter().enumerate() {
+        if poly.len() > 3 {
+            polygons_split += 1;
+        }
+        for k in 1..poly.len().saturating_sub(1) {
+            triangles.push([poly[0], poly[k], poly[k + 1]]);
+            face_of_triangle.push(f);
+        }
+    }
+    if triangles.is_empty() {
+        return Err(MeshFileError::NoTriangles {
+            path: name.to_string(),
+            format,
+            vertices: raw.positions.len(),
+        });
+    }
+    let n_vertices = raw.positions.len();
+    match TriMesh::new(raw.positions, triangles) {
+        Ok(mesh) => Ok(MeshFile {
+            mesh,
+            format,
+            polygons_split,
+            face_of_triangle,
+        }),
+        Err(source) => {
+            let numbering = Numbering {
+                format,
+                face_of_triangle: &face_of_triangle,
+                vertex_lines: &raw.vertex_lines,
+                face_lines: &raw.face_lines,
+            };
+            Err(MeshFileError::Mesh {
+                path: name.to_string(),
+                format,
+                message: numbering.describe(&source, n_vertices),
+                source,
+            })
+        }
+    }
+}
+
+/// Translates mesh errors into a file's numbering.
+struct Numbering<'a> {
+    format: MeshFormat,
+    face_of_triangle: &'a [usize],
+    vertex_lines: &'a [usize],
+    face_lines: &'a [usize],
+}
+
+impl Numbering<'_> {
+    fn vertex(&self, v: usize) -> String {
+        let n = v + self.format.first_index();
+        match self.vertex_lines.get(v) {
+            Some(line) => format!("vertex {n} (line {line})"),
+            None => format!("vertex {n}"),
+        }
+    }
+
+    fn vertex_number(&self, v: usize) -> usize {
+        v + self.format.first_index()
+    }
+
+    fn face(&self, t: usize) -> String {
+        let f = self.face_of_triangle.get(t).copied().unwrap_or(t);
+        let n = f + self.format.first_index();
+        match self.face_lines.get(f) {
+            Some(line) => format!("face {n} (line {line})"),
+            None => format!("face {n}"),
+        }
+    }
+
+    fn describe(&self, e: &MeshError, n_vertices: usize) -> String {
+        let xyz = |a: usize| ["x", "y", "z"].get(a).copied().unwrap_or("?");
+        match e {
+            MeshError::IndexOutOfRange {
+                triangle, index, ..
+            } => format!(
+                "{} names vertex {}, but the file has {n_vertices} vertices",
+                self.face(*triangle),
+                self.vertex_number(*index)
+            ),
+            MeshError::RepeatedVertex { triangle, vertex } => format!(
+                "{} names vertex {} more than once",
+                self.face(*triangle),
+                self.vertex_number(*vertex)
+            ),
+            MeshError::NonFiniteCoordinate {
+                vertex,
+                axis,
+                value,
+            } => format!(
+                "{}: coordinate {} is not finite ({value})",
+                self.vertex(*vertex),
+                xyz(*axis)
+            ),
+            MeshError::ZeroAreaTriangle { triangle, vertices } => format!(
+                "{} has zero area (vertices {}, {}, {} are colinear)",
+                self.face(*triangle),
+                self.vertex_number(vertices[0]),
+                self.vertex_number(vertices[1]),
+                self.vertex_number(vertices[2])
+            ),
+            MeshError::NonManifoldEdge {
+                edge,
+                count,
+                triangles,
+            } => format!(
+                "the edge between vertices {} and {} is shared by {count} triangles (of {}, {} and {}); a manifold edge has at most two",
+                self.vertex_number(edge[0]),
+                self.vertex_number(edge[1]),
+                self.face(triangles[0]),
+                self.face(triangles[1]),
+                self.face(triangles[2])
+            ),
+            MeshError::InconsistentOrientation { edge, triangles } => format!(
+                "{} and {} traverse the edge between vertices {} and {} in the same direction: the orientation is inconsistent",
+                self.face(triangles[0]),
+                self.face(triangles[1]),
+                self.vertex_number(edge[0]),
+                self.vertex_number(edge[1])
+            ),
+            MeshError::DuplicateTriangle { triangles } => format!(
+                "{} and {} have the same three vertices",
+                self.face(triangles[0]),
+                self.face(triangles[1])
+            ),
+            other => other.to_string(),
+        }
+    }
+}
+
+/// Lines of a text reader, with a message for bytes that are not text.
+fn text_lines(reader: impl BufRead) -> impl Iterator<Item = Result<(usize, String), String>> {
+    reader.lines().enumerate().map(|(i, l)| {
+        l.map(|s| (i + 1, s)).map_err(|e| {
+            if e.kind() == std::io::ErrorKind::InvalidData {
+                format!("line {} is not text (a binary file?)", i + 1)
+            } else {
+                format!("line {}: {e}", i + 1)
+            }
+        })
+    })
+}
+
+fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
+    let mut raw = Raw {
+        positions: Vec::new(),
+        faces: Vec::new(),
+        vertex_lines: Vec::new(),
+        face_lines: Vec::new(),
+    };
+    for item in text_lines(reader) {
+        let (lineno, line) = item?;
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                let mut c = [0.0; 3];
+                for (axis, slot) in c.iter_mut().enumerate() {
+                    let w = words.next().ok_or_else(|| {
+                        format!(
+                            "line {lineno}: vertex has fewer than 3 coordinates (missing {})",
+                            ["x", "y", "z"][axis]
+                        )
+                    })?;
+                    *slot = w
+                        .parse::<f64>()
+                        .map_err(|_| format!("line {lineno}: cannot parse coordinate `{w}`"))?;
+                }
+                raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+                raw.vertex_lines.push(lineno);
+            }
+            Some("f") => {
+                let mut poly = Vec::new();
+                for corner in words {
+                    let idx = corner.split('/').next().unwrap_or("");
+                    let value: i64 = idx.parse().map_err(|_| {
+                        format!("line {lineno}: cannot parse face index `{corner}`")
+                    })?;
+                    let n = raw.positions.len() as i64;
+                    let resolved = match value {
+                        v if v > 0 => v - 1,
+                        v if v < 0 => n + v,
+                        _ => -1,
+                    };
+                    if resolved < 0 {
+                        return Err(format!(
+                            "line {lineno}: face index {value} does not name a vertex (1-based, or negative relative to the {n} vertices so far)"
+                        ));
+                    }
+                    poly.push(resolved as usize);
+                }
+                if poly.len() < 3 {
+                    return Err(format!(
+                        "line {lineno}: face has {} corners (at least 3 are needed)",
+                        poly.len()
+                    ));
+                }
+                raw.faces.push(poly);
+                raw.face_lines.push(lineno);
+            }
+            _ => {}
+        }
+    }
+    Ok(raw)
+}
+
+/// The most elements preallocated from a count in a header (a wrong count cannot exhaust memory).
+const PREALLOCATE: usize = 1 << 20;
+
+fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
+    // Content lines: comments (`#` to the end of the line) and blank lines skipped.
+    let mut lines = text_lines(reader).filter_map(|item| match item {
+        Ok((n, l)) => {
+            let body = l.split('#').next().unwrap_or("").trim().to_string();
+            (!body.is_empty()).then_some(Ok((n, body)))
+        }
+        Err(e) => Some(Err(e)),
+    });
+    let (first_line, header) = lines
+        .next()
+        .ok_or_else(|| "the file is empty (an OFF file starts with `OFF`)".to_string())??;
+    let mut words = header.split_whitespace();
+    let keyword = words.next().unwrap_or("");
+    // OFF, with the optional colour / normal / texture prefixes of the format's variants.
+    let known = [
+        "OFF", "COFF", "NOFF", "CNOFF", "STOFF", "STCOFF", "STNOFF", "STCNOFF",
+    ];
+    if !known.contains(&keyword) {
+        return Err(format!(
+            "line {first_line}: the header is `{}`, not `OFF`",
+            header.chars().take(40).collect::<String>()
+        ));
+    }
+    // The counts follow on the same line or on the next content line.
+    let rest: Vec<&str> = words.collect();
+    let (counts_line, counts): (usize, Vec<String>) = if rest.is_empty() {
+        let (n, l) = lines
+            .next()
+            .ok_or_else(|| "no vertex and face counts after the header".to_string())??;
+        (n, l.split_whitespace().map(str::to_string).collect())
+    } else {
+        (first_line, rest.iter().map(|s| s.to_string()).collect())
+    };
+    let count = |k: usize, what: &str| -> Result<usize, String> {
+        counts
+            .get(k)
+            .ok_or_else(|| format!("line {counts_line}: missing the {what} count"))?
+            .parse::<usize>()
+            .map_err(|_| {
+                format!(
+                    "line {counts_line}: cannot parse the {what} count `{}`",
+                    counts[k]
+                )
+            })
+    };
+    let (nv, nf) = (count(0, "vertex")?, count(1, "face")?);
+    let mut raw = Raw {
+        positions: Vec::with_capacity(nv.min(PREALLOCATE)),
+        faces: Vec::with_capacity(nf.min(PREALLOCATE)),
+        vertex_lines: Vec::with_capacity(nv.min(PREALLOCATE)),
+        face_lines: Vec::with_capacity(nf.min(PREALLOCATE)),
+    };
+    for v in 0..nv {
+        let (n, l) = lines.next().ok_or_else(|| {
+            format!(
+                "the file ends after {v} of its {nv} vertices (vertex {v}, 0-based, is missing)"
+            )
+        })??;
+        let mut c = [0.0; 3];
+        let mut words = l.split_whitespace();
+        for (axis, slot) in c.iter_mut().enumerate() {
+            let w = words.next().ok_or_else(|| {
+                format!(
+                    "line {n}: vertex {v} (0-based) has fewer than 3 coordinates (missing {})",
+                    ["x", "y", "z"][axis]
+                )
+            })?;
+            *slot = w.parse().map_err(|_| {
+                format!("line {n}: vertex {v} (0-based): cannot parse coordinate `{w}`")
+            })?;
+        }
+        raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+        raw.vertex_lines.push(n);
+    }
+    for f in 0..nf {
+        let (n, l) = lines.next().ok_or_else(|| {
+            format!("the file ends after {f} of its {nf} faces (face {f}, 0-based, is missing)")
+        })??;
+        let mut words = l.split_whitespace();
+        let k: usize = words.next().and_then(|w| w.parse().ok()).ok_or_else(|| {
+            format!("line {n}: face {f} (0-based) does not start with its corner count")
+        })?;
+        if k < 3 {
+            return Err(format!(
+                "line {n}: face {f} (0-based) has {k} corners (at least 3 are needed)"
+            ));
+        }
+        let mut poly = Vec::with_capacity(k.min(64));
+        for _ in 0..k {
+            let w = words.next().ok_or_else(|| {
+                format!("line {n}: face {f} (0-based) lists fewer than its {k} corners")
+            })?;
+            poly.push(w.parse::<usize>().map_err(|_| {
+                format!("line {n}: face {f} (0-based): cannot parse vertex index `{w}`")
+            })?);
+        }
+        // What follows the corners (a colour) is ignored.
+        raw.faces.push(poly);
+        raw.face_lines.push(n);
+    }
+    Ok(raw)
+}
+
+fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{DefaultElement, Property};
+    // A PLY file starts with the magic line `ply`: check it first, so that another file gets a clear message.
+    let mut magic = [0u8; 4];
+    let got = read_up_to(&mut reader, &mut magic).map_err(|e| e.to_string())?;
+    if got < 3 || &magic[..3] != b"ply" || (got == 4 && !matches!(magic[3], b'\n' | b'\r')) {
+        return Err("it does not start with the line `ply`".into());
+    }
+    let mut chained = std::io::Cursor::new(magic[..got].to_vec()).chain(reader);
+    let parser = Parser::<DefaultElement>::new();
+    let ply = parser.read_ply(&mut chained).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            "the file ends before the elements its header announces (truncated?)".to_string()
+        } else {
+            one_line(&e.to_string())
+        }
+    })?;
+    let scalar = |p: &Property| -> Option<f64> {
+        Some(match *p {
+            Property::Char(v) => f64::from(v),
+            Property::UChar(v) => f64::from(v),
+            Property::Short(v) => f64::from(v),
+            Property::UShort(v) => f64::from(v),
+            Property::Int(v) => f64::from(v),
+            Property::UInt(v) => f64::from(v),
+            Property::Float(v) => f64::from(v),
+            Property::Double(v) => v,
+            _ => return None,
+        })
+    };
+    let index_list = |p: &Property| -> Option<Vec<i64>> {
+        Some(match p {
+            Property::ListChar(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            Property::ListUChar(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            Property::ListShort(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            Property::ListUShort(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            Property::ListInt(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            Property::ListUInt(v) => v.iter().map(|&x| i64::from(x)).collect(),
+            _ => return None,
+        })
+    };
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or_else(|| "no `vertex` element".to_string())?;
+    let mut raw = Raw {
+        positions: Vec::with_capacity(vertices.len()),
+        faces: Vec::new(),
+        vertex_lines: Vec::new(),
+        face_lines: Vec::new(),
+    };
+    for (i, v) in vertices.iter().enumerate() {
+        let mut c = [0.0; 3];
+        for (slot, axis) in c.iter_mut().zip(["x", "y", "z"]) {
+            *slot = v
+                .get(axis)
+                .and_then(scalar)
+                .ok_or_else(|| format!("vertex {i} (0-based) has no numeric property `{axis}`"))?;
+        }
+        raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+    }
+    if let Some(faces) = ply.payload.get("face") {
+        raw.faces.reserve(faces.len());
+        for (f, e) in faces.iter().enumerate() {
+            let list = e
+                .get("vertex_indices")
+                .or_else(|| e.get("vertex_index"))
+                .and_then(index_list)
+                .ok_or_else(|| {
+                    format!("face {f} (0-based) has no integer list `vertex_indices`")
+                })?;
+            if list.len() < 3 {
+                return Err(format!(
+                    "face {f} (0-based) has {} corners (at least 3 are needed)",
+                    list.len()
+                ));
+            }
+            let mut poly = Vec::with_capacity(list.len());
+            for i in list {
+                poly.push(usize::try_from(i).map_err(|_| {
+                    format!("face {f} (0-based) names the negative vertex index {i}")
+                })?);
+            }
+            raw.faces.push(poly);
+        }
+    }
+    Ok(raw)
+}
+
+/// A message on one line: whitespace runs (newlines, tabs) collapsed, at most 200 characters.
+fn one_line(message: &str) -> String {
+    let joined = message.split_whitespace().collect::<Vec<_>>().join(" ");
+    match joined.char_indices().nth(200) {
+        Some((cut, _)) => format!("{}…", &joined[..cut]),
+        None => joined,
+    }
+}
+
+/// Reads up to `buf.len()` bytes (fewer only at the end of the input).
+fn read_up_to(reader: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match reader.read(&mut buf[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
+}
+
+/// The byte order of a binary PLY file written by [`write_ply_to`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PlyEncoding {
+    /// `format ascii 1.0`, coordinates with 17 significant digits.
+    Ascii,
+    /// `format binary_little_endian 1.0`.
+    BinaryLittleEndian,
+    /// `format binary_big_endian 1.0`.
+    BinaryBigEndian,
+}
+
+/// Writes a PLY file: `double` x, y, z per vertex and a `uchar`/`int` list per face.
+///
+/// # Errors
+/// The writer's I/O error.
+pub fn write_ply_to(
+    mut out: impl Write,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    encoding: PlyEncoding,
+) -> std::io::Result<()> {
+    let format = match encoding {
+        PlyEncoding::Ascii => "ascii",
+        PlyEncoding::BinaryLittleEndian => "binary_little_endian",
+        PlyEncoding::BinaryBigEndian => "binary_big_endian",
+    };
+    write!(
+        out,
+        "ply\nformat {format} 1.0\ncomment written by hinge\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        positions.len(),
+        triangles.len()
+    )?;
+    let index = |i: usize| {
+        i32::try_from(i).map_err(|_| {
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!("vertex index {i} does not fit a PLY int"),
+            )
+        })
+    };
+    match encoding {
+        PlyEncoding::Ascii => {
+            for p in positions {
+                writeln!(out, "{:.17e} {:.17e} {:.17e}", p.x, p.y, p.z)?;
+            }
+            for t in triangles {
+                writeln!(out, "3 {} {} {}", index(t[0])?, index(t[1])?, index(t[2])?)?;
+            }
+        }
+        PlyEncoding::BinaryLittleEndian | PlyEncoding::BinaryBigEndian => {
+            let le = encoding == PlyEncoding::BinaryLittleEndian;
+            let f = |v: f64| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+            let i = |v: i32| if le { v.to_le_bytes() } else { v.to_be_bytes() };
+            for p in positions {
+                out.write_all(&f(p.x))?;
+                out.write_all(&f(p.y))?;
+                out.write_all(&f(p.z))?;
+            }
+            for t in triangles {
+                out.write_all(&[3])?;
+                for &c in t {
+                    out.write_all(&i(index(c)?))?;
+                }
+            }
+        }
+    }
+    out.flush()
+}
+
+/// Writes an OFF file (coordinates with 17 significant digits).
+///
+/// # Errors
+/// The writer's I/O error.
+pub fn write_off_to(
+    mut out: impl Write,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+) -> std::io::Result<()> {
+    writeln!(out, "OFF\n{} {} 0", positions.len(), triangles.len())?;
+    for p in positions {
+        writeln!(out, "{:.17e} {:.17e} {:.17e}", p.x, p.y, p.z)?;
+    }
+    for t in triangles {
+        writeln!(out, "3 {} {} {}", t[0], t[1], t[2])?;
+    }
+    out.flush()
+}
+
+/// Writes a mesh (or a deformed state of it) in the format of `path`'s extension: OBJ, OFF, or binary
+/// little-endian PLY.
+///
+/// # Errors
+/// [`MeshFileError::UnknownExtension`] or [`MeshFileError::Io`].
+pub fn write_mesh(
+    path: impl AsRef<Path>,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+) -> Result<(), MeshFileError> {
+    let path = path.as_ref();
+    let name = path.display().to_string();
+    let format = MeshFormat::from_path(path)
+        .ok_or_else(|| MeshFileError::UnknownExtension { path: name.clone() })?;
+    let io = |source| MeshFileError::Io {
+        path: name.clone(),
+        source,
+    };
+    let out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    match format {
+        MeshFormat::Obj => crate::obj::write_obj_to(out, positions, triangles),
+        MeshFormat::Off => write_off_to(out, positions, triangles),
+        MeshFormat::Ply => write_ply_to(out, positions, triangles, PlyEncoding::BinaryLittleEndian),
+    }
+    .map_err(io)
+}

@@ -1,0 +1,308 @@
+//! Mesh files: OBJ, OFF and PLY (ASCII, binary little and big endian) read back what was written, polygons
+//! are fan-triangulated, and bad files are typed errors that name the file and count as the file does —
+//! never a panic, whatever the bytes.
+
+use std::io::Cursor;
+
+use hinge_core::TriMesh;
+use hinge_core::meshio::{
+    MeshFileError, MeshFormat, PlyEncoding, read_mesh, read_mesh_from, write_mesh, write_off_to,
+    write_ply_to,
+};
+use hinge_core::nalgebra::Vector3;
+use hinge_core::shapes::{icosphere, irregular_sheet, random_permutation, renumber, torus};
+
+fn meshes() -> Vec<(&'static str, TriMesh)> {
+    let ico = icosphere(2, 0.7).unwrap();
+    let perm = random_permutation(ico.n_vertices(), 11);
+    vec![
+        ("renumbered icosphere", renumber(&ico, &perm).unwrap()),
+        ("torus", torus(12, 7, 1.0, 0.3).unwrap()),
+        ("irregular sheet", irregular_sheet(9, 7, 5).unwrap()),
+    ]
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("hinge-mesh-files-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn read(bytes: &[u8], format: MeshFormat) -> Result<hinge_core::meshio::MeshFile, MeshFileError> {
+    read_mesh_from(Cursor::new(bytes), format, "test")
+}
+
+#[test]
+fn every_format_reads_back_what_it_wrote_bitwise() {
+    let dir = tmp("roundtrip");
+    for (name, mesh) in meshes() {
+        let (x, t) = (mesh.positions(), mesh.triangles());
+        // Through files, by extension.
+        for ext in ["obj", "off", "ply", "OFF", "Ply"] {
+            let path = dir.join(format!("m.{ext}"));
+            write_mesh(&path, x, t).unwrap();
+            let back = read_mesh(&path).unwrap();
+            assert_eq!(back.mesh.positions(), x, "{name} .{ext}");
+            assert_eq!(back.mesh.triangles(), t, "{name} .{ext}");
+            assert_eq!(back.polygons_split, 0);
+        }
+        // Every PLY encoding, and OFF, through readers.
+        for enc in [
+            PlyEncoding::Ascii,
+            PlyEncoding::BinaryLittleEndian,
+            PlyEncoding::BinaryBigEndian,
+        ] {
+            let mut bytes = Vec::new();
+            write_ply_to(&mut bytes, x, t, enc).unwrap();
+            let back = read(&bytes, MeshFormat::Ply).unwrap();
+            assert_eq!(back.mesh.positions(), x, "{name} {enc:?}");
+            assert_eq!(back.mesh.triangles(), t, "{name} {enc:?}");
+        }
+        let mut bytes = Vec::new();
+        write_off_to(&mut bytes, x, t).unwrap();
+        assert_eq!(read(&bytes, MeshFormat::Off).unwrap().mesh.positions(), x);
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn ply_type_spellings_extra_properties_and_elements() {
+    // Both spellings of the types, properties hinge does not use, an element it does not know, vertex
+    // indices as uint8 lists of uint32: read as the same mesh.
+    let ascii = "ply\nformat ascii 1.0\ncomment a quad and a triangle\nelement vertex 5\n\
+        property float32 x\nproperty float y\nproperty double z\nproperty uchar red\nproperty float32 confidence\n\
+        element face 2\nproperty list uint8 uint32 vertex_indices\nproperty int flags\n\
+        element edge 1\nproperty int vertex1\nproperty int vertex2\nend_header\n\
+        0 0 0 255 0.5\n1 0 0 0 0.5\n1 1 0 0 0.5\n0 1 0 0 0.5\n2 0.5 0.25 7 1\n\
+        4 0 1 2 3 9\n3 1 4 2 0\n0 1\n";
+    let m = read(ascii.as_bytes(), MeshFormat::Ply).unwrap();
+    assert_eq!(m.mesh.n_vertices(), 5);
+    assert_eq!(m.mesh.triangles(), &[[0, 1, 2], [0, 2, 3], [1, 4, 2]]);
+    assert_eq!(m.polygons_split, 1);
+    assert_eq!(m.face_of_triangle, [0, 0, 1]);
+    assert_eq!(m.mesh.positions()[4], Vector3::new(2.0, 0.5, 0.25));
+    // The same in binary big endian with float32 coordinates and an int16 list type.
+    let mut bin = b"ply\nformat binary_big_endian 1.0\nelement vertex 5\nproperty float32 x\n\
+        property float32 y\nproperty float32 z\nproperty uint8 alpha\nelement face 2\n\
+        property list uchar int16 vertex_index\nend_header\n"
+        .to_vec();
+    for p in m.mesh.positions() {
+        for c in [p.x, p.y, p.z] {
+            bin.extend_from_slice(&(c as f32).to_be_bytes());
+        }
+        bin.push(200);
+    }
+    for face in [&[0i16, 1, 2, 3][..], &[1, 4, 2]] {
+        bin.push(face.len() as u8);
+        for &i in face {
+            bin.extend_from_slice(&i.to_be_bytes());
+        }
+    }
+    let b = read(&bin, MeshFormat::Ply).unwrap();
+    assert_eq!(b.mesh.positions(), m.mesh.positions());
+    assert_eq!(b.mesh.triangles(), m.mesh.triangles());
+}
+
+#[test]
+fn polygons_are_fan_triangulated_in_every_format() {
+    // A 2×1 quad strip and a pentagon: 1 + 1 + 3 … every polygon fanned from its first corner.
+    let obj = "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 2 1 0\nv 1 1 0\nv 0 1 0\nv 1 2 0\nv 0 2 0\n\
+        f 1 2 5 6\nf 2 3 4 5\nf 6 5 7 8\n";
+    let off = "OFF\n# a comment\n8 3 0\n0 0 0\n1 0 0\n2 0 0\n2 1 0\n1 1 0\n0 1 0\n1 2 0\n0 2 0\n\
+        4 0 1 4 5\n4 1 2 3 4 255 0 0\n4 5 4 6 7\n";
+    let ply = "ply\nformat ascii 1.0\nelement vertex 8\nproperty double x\nproperty double y\n\
+        property double z\nelement face 3\nproperty list uchar int vertex_indices\nend_header\n\
+        0 0 0\n1 0 0\n2 0 0\n2 1 0\n1 1 0\n0 1 0\n1 2 0\n0 2 0\n4 0 1 4 5\n4 1 2 3 4\n4 5 4 6 7\n";
+    let expect = [
+        [0, 1, 4],
+        [0, 4, 5],
+        [1, 2, 3],
+        [1, 3, 4],
+        [5, 4, 6],
+        [5, 6, 7],
+    ];
+    for (text, format) in [
+        (obj, MeshFormat::Obj),
+        (off, MeshFormat::Off),
+        (ply, MeshFormat::Ply),
+    ] {
+        let m = read(text.as_bytes(), format).unwrap();
+        assert_eq!(m.mesh.triangles(), &expect, "{format:?}");
+        assert_eq!(m.polygons_split, 3);
+        assert_eq!(m.face_of_triangle, [0, 0, 1, 1, 2, 2]);
+    }
+}
+
+fn message(bytes: &[u8], format: MeshFormat) -> String {
+    let e = read(bytes, format).unwrap_err().to_string();
+    assert!(!e.contains('\n'), "one line: {e}");
+    assert!(e.starts_with("test: "), "names the file: {e}");
+    e
+}
+
+#[test]
+fn mesh_errors_count_as_the_file_does() {
+    // A face naming the 9th vertex of 4 (OBJ counts from 1, OFF and PLY from 0).
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n# faces\nf 1 2 3\nf 2 4 9\n";
+    let e = message(obj.as_bytes(), MeshFormat::Obj);
+    assert!(
+        e.contains("face 2 (line 7)") && e.contains("vertex 9") && e.contains("4 vertices"),
+        "{e}"
+    );
+    assert!(e.contains("OBJ numbering: from 1"), "{e}");
+    let off = "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 8\n";
+    let e = message(off.as_bytes(), MeshFormat::Off);
+    assert!(
+        e.contains("face 1 (line 8)") && e.contains("vertex 8") && e.contains("from 0"),
+        "{e}"
+    );
+    let ply = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+        property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n\
+        0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 8\n";
+    let e = message(ply.as_bytes(), MeshFormat::Ply);
+    assert!(
+        e.contains("face 1 names vertex 8") && e.contains("PLY numbering: from 0"),
+        "{e}"
+    );
+    // A non-finite coordinate names the vertex and its line; a repeated vertex names the face.
+    let e = message(b"v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n", MeshFormat::Obj);
+    assert!(
+        e.contains("vertex 2 (line 2)") && e.contains("coordinate y"),
+        "{e}"
+    );
+    let e = message(
+        b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n",
+        MeshFormat::Off,
+    );
+    assert!(
+        e.contains("face 0") && e.contains("vertex 1 more than once"),
+        "{e}"
+    );
+    // A fanned polygon is named by its own number.
+    let e = message(
+        b"OFF\n4 1 0\n0 0 0\n1 0 0\n2 0 0\n1 1 0\n4 0 1 2 3\n",
+        MeshFormat::Off,
+    );
+    assert!(e.contains("face 0 (line 7) has zero area"), "{e}");
+    // A zero-area triangle.
+    let e = message(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", MeshFormat::Obj);
+    assert!(e.contains("face 1 (line 4) has zero area"), "{e}");
+}
+
+#[test]
+fn files_that_do_not_match_their_extension_are_errors_naming_the_format() {
+    // OBJ with no `v`/`f` records; an OFF with another header; a PNG under each extension.
+    let e = message(b"# nothing here\nmtllib x.mtl\n", MeshFormat::Obj);
+    assert!(e.contains("read as OBJ") && e.contains("0 vertices"), "{e}");
+    let e = message(b"OFF\n0 0 0\n", MeshFormat::Off);
+    assert!(e.contains("read as OFF"), "{e}");
+    let e = message(b"PLY\n3 1 0\n", MeshFormat::Off);
+    assert!(
+        e.contains("not a valid OFF file") && e.contains("not `OFF`"),
+        "{e}"
+    );
+    let png = b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\x01\x90\0\0\x01\x2c\x08\x02\0\0\0";
+    for (format, words) in [
+        (MeshFormat::Obj, "not a valid OBJ file"),
+        (MeshFormat::Off, "not a valid OFF file"),
+        (MeshFormat::Ply, "not a valid PLY file"),
+    ] {
+        let e = message(png, format);
+        assert!(e.contains(words), "{e}");
+    }
+    // Unknown extension, missing file: named.
+    let dir = tmp("ext");
+    let p = dir.join("picture.png");
+    std::fs::write(&p, png).unwrap();
+    let e = read_mesh(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("picture.png") && e.contains("unknown mesh file extension"),
+        "{e}"
+    );
+    let e = read_mesh(dir.join("missing.off")).unwrap_err().to_string();
+    assert!(e.contains("missing.off"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+    // An OFF that announces more than it has: no huge allocation, the missing vertex is named.
+    let e = message(b"OFF\n4000000000 4000000000 0\n0 0 0\n", MeshFormat::Off);
+    assert!(e.contains("ends after 1 of its 4000000000 vertices"), "{e}");
+}
+
+#[test]
+fn a_truncated_binary_ply_is_an_error_at_every_length() {
+    let mesh = irregular_sheet(4, 3, 2).unwrap();
+    for enc in [
+        PlyEncoding::BinaryLittleEndian,
+        PlyEncoding::BinaryBigEndian,
+    ] {
+        let mut bytes = Vec::new();
+        write_ply_to(&mut bytes, mesh.positions(), mesh.triangles(), enc).unwrap();
+        let header = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
+        for len in 0..bytes.len() {
+            let r = read(&bytes[..len], MeshFormat::Ply);
+            let e = r.expect_err("a truncated file must not read").to_string();
+            assert!(!e.contains('\n'), "{e}");
+            if len > header {
+                assert!(
+                    e.contains("truncated") || e.contains("ends before"),
+                    "{len}: {e}"
+                );
+            }
+        }
+        assert!(read(&bytes, MeshFormat::Ply).is_ok());
+    }
+}
+
+#[test]
+fn random_bytes_never_panic() {
+    // Seeded garbage, and valid files with bytes flipped: every reader returns (Ok or Err), never panics.
+    let mut rng = hinge_core::grid::SplitMix64(99);
+    let mesh = irregular_sheet(4, 4, 3).unwrap();
+    let mut samples: Vec<(Vec<u8>, MeshFormat)> = Vec::new();
+    let mut valid = Vec::new();
+    write_ply_to(
+        &mut valid,
+        mesh.positions(),
+        mesh.triangles(),
+        PlyEncoding::BinaryLittleEndian,
+    )
+    .unwrap();
+    let mut off = Vec::new();
+    write_off_to(&mut off, mesh.positions(), mesh.triangles()).unwrap();
+    let mut obj = Vec::new();
+    hinge_core::obj::write_obj_to(&mut obj, mesh.positions(), mesh.triangles()).unwrap();
+    for _ in 0..300 {
+        let len = (rng.next_u64() % 400) as usize;
+        let bytes: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+        for f in [MeshFormat::Obj, MeshFormat::Off, MeshFormat::Ply] {
+            samples.push((bytes.clone(), f));
+        }
+        for (base, f) in [
+            (&valid, MeshFormat::Ply),
+            (&off, MeshFormat::Off),
+            (&obj, MeshFormat::Obj),
+        ] {
+            let mut b = base.clone();
+            for _ in 0..3 {
+                let i = (rng.next_u64() as usize) % b.len();
+                b[i] = rng.next_u64() as u8;
+            }
+            samples.push((b, f));
+        }
+    }
+    let mut errors = 0;
+    for (bytes, f) in &samples {
+        match std::panic::catch_unwind(|| read(bytes, *f)) {
+            Ok(Ok(m)) => assert!(m.mesh.n_triangles() > 0),
+            Ok(Err(e)) => {
+                errors += 1;
+                assert!(!e.to_string().contains('\n'), "{e}");
+            }
+            Err(_) => panic!("a reader panicked on {f:?} input of {} bytes", bytes.len()),
+        }
+    }
+    assert!(errors > samples.len() / 2, "{errors} of {}", samples.len());
+}
