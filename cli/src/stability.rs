@@ -357,20 +357,129 @@ pub fn cases(quick: bool) -> Result<Vec<Value>, String> {
     Ok(cases)
 }
 
-fn figures(case: &Value) -> String {
-    let mut s = String::new();
-    if let Some(o) = case.as_object() {
-        for (k, v) in o {
-            if k == "name" || k == "pass" {
-                continue;
+/// `v` with three significant digits (fixed notation between 1e-3 and 1e4, else scientific).
+fn sig(v: f64) -> String {
+    let a = v.abs();
+    if v == 0.0 {
+        "0".into()
+    } else if !v.is_finite() {
+        format!("{v}")
+    } else if (1e-3..1e4).contains(&a) {
+        let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
+        format!("{v:.decimals$}")
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+/// The largest of `field` over the `result`-like objects of a case's list `key` (`path` picks the object).
+fn largest(case: &Value, key: &str, path: &[&str], field: &str) -> f64 {
+    let mut m = 0.0_f64;
+    for item in case[key].as_array().into_iter().flatten() {
+        let mut objs = Vec::new();
+        if path.is_empty() {
+            objs.push(item);
+        }
+        for p in path {
+            objs.push(&item[*p]);
+        }
+        for o in objs {
+            if let Some(v) = o[field].as_f64() {
+                m = m.max(v.abs());
             }
+        }
+    }
+    m
+}
+
+/// How many entries of a case's list `key` ended in a typed error.
+fn typed_errors(case: &Value, key: &str) -> usize {
+    let mut n = 0;
+    for item in case[key].as_array().into_iter().flatten() {
+        let text = item.to_string();
+        n += text.matches("typed_error").count();
+    }
+    n
+}
+
+/// The readable figures of a case: rounded, with units (the JSON keeps every figure at full precision).
+fn figures(case: &Value) -> String {
+    let f = |k: &str| case[k].as_f64().unwrap_or(f64::NAN);
+    if case.get("tip_deflection").is_some() {
+        return format!(
+            "tip {} m (plate theory {} m; checked against the {}), {} Newton iterations, ‖∇E‖ {} N",
+            sig(f("tip_deflection")),
+            sig(f("plate_tip_deflection")),
+            case["checked_against"].as_str().unwrap_or("?"),
+            case["newton_iterations"],
+            sig(f("final_residual"))
+        );
+    }
+    if case.get("angles").is_some() {
+        return format!(
+            "{} angles: largest energy {} J, |gradient| {} N, |Hessian| {} N/m; {} typed errors{}",
+            case["angles"].as_array().map_or(0, Vec::len),
+            sig(largest(case, "angles", &["result"], "energy")),
+            sig(largest(case, "angles", &["result"], "max_abs_gradient")),
+            sig(largest(case, "angles", &["result"], "max_abs_hessian")),
+            typed_errors(case, "angles"),
+            match case["barrier_grows"].as_bool() {
+                Some(true) => "; the barrier grows towards ±π",
+                Some(false) => "; the barrier does NOT grow towards ±π",
+                None => "",
+            }
+        );
+    }
+    if case.get("rest_states").is_some() {
+        let parts = ["at_rest", "toward_pi", "across_pi"];
+        return format!(
+            "{} rest states: largest energy {} J, |gradient| {} N, |Hessian| {} N/m; {} typed errors",
+            case["rest_states"].as_array().map_or(0, Vec::len),
+            sig(largest(case, "rest_states", &parts, "energy")),
+            sig(largest(case, "rest_states", &parts, "max_abs_gradient")),
+            sig(largest(case, "rest_states", &parts, "max_abs_hessian")),
+            typed_errors(case, "rest_states")
+        );
+    }
+    if case.get("altitudes").is_some() {
+        return format!(
+            "{} altitudes down to 0: Hessian error at most {} ulps, |Hessian| up to {} N/m; {} typed errors",
+            case["altitudes"].as_array().map_or(0, Vec::len),
+            sig(largest(case, "altitudes", &[], "hessian_ulps")),
+            sig(largest(case, "altitudes", &[], "max_abs_hessian")),
+            typed_errors(case, "altitudes")
+        );
+    }
+    if case.get("scales").is_some() {
+        return format!(
+            "{} scales: energy changes by at most {} (relative), Hessian error at most {} ulps",
+            case["scales"].as_array().map_or(0, Vec::len),
+            sig(largest(case, "scales", &[], "energy_relative_change")),
+            sig(largest(case, "scales", &[], "hessian_ulps"))
+        );
+    }
+    if case.get("largest_drop").is_some() {
+        let its: Vec<String> = case["newton_iterations"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(Value::to_string)
+            .collect();
+        return format!(
+            "largest drop {} m, Newton iterations per step [{}]{}",
+            sig(f("largest_drop")),
+            its.join(", "),
+            case["failure"]
+                .as_str()
+                .map_or(String::new(), |e| format!("; failed: {e}"))
+        );
+    }
+    // Any other case: its fields, compact.
+    let mut s = String::new();
+    for (k, v) in case.as_object().into_iter().flatten() {
+        if k != "name" && k != "pass" {
             let t = v.to_string();
-            let t = if t.chars().count() > 110 {
-                format!("{}…", t.chars().take(110).collect::<String>())
-            } else {
-                t
-            };
-            s.push_str(&format!("{k}={t} "));
+            s.push_str(&format!("{k}={} ", t.chars().take(60).collect::<String>()));
         }
     }
     s
@@ -384,7 +493,7 @@ pub fn run(args: StabilityArgs) -> Result<(), String> {
         let pass = c["pass"].as_bool() == Some(true);
         failed += usize::from(!pass);
         println!(
-            "{} {:<55} {}",
+            "{} {:<48} {}",
             if pass { "PASS" } else { "FAIL" },
             c["name"].as_str().unwrap_or("?"),
             figures(c)
@@ -399,4 +508,20 @@ pub fn run(args: StabilityArgs) -> Result<(), String> {
         return Err(format!("{failed} stability case(s) failed"));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sig;
+
+    #[test]
+    fn figures_are_rounded_to_three_significant_digits() {
+        assert_eq!(sig(0.2954195563079083), "0.295");
+        assert_eq!(sig(10141.208754665624), "1.01e4");
+        assert_eq!(sig(101.41208754665624), "101");
+        assert_eq!(sig(5.434509654241668e-6), "5.43e-6");
+        assert_eq!(sig(0.013718314293482095), "0.0137");
+        assert_eq!(sig(-2.5), "-2.50");
+        assert_eq!(sig(0.0), "0");
+    }
 }

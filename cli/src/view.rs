@@ -382,7 +382,10 @@ mod tests {
             let pictures = render(&[x], &t, &sphere).unwrap();
             let [r, g, b] = centre_pixel(&pictures[0]).map(i32::from);
             if mesh_in_front {
-                assert!(r > g + 40 && r > b + 40, "mesh colour expected: {r} {g} {b}");
+                assert!(
+                    r > g + 40 && r > b + 40,
+                    "mesh colour expected: {r} {g} {b}"
+                );
             } else {
                 assert!(b > r + 40, "sphere colour expected: {r} {g} {b}");
             }
@@ -401,7 +404,10 @@ mod tests {
         let cam = Camera::fit(points.iter().copied());
         for p in points {
             let [x, y, _] = cam.project(&p);
-            assert!(x > 0.0 && x < WIDTH as f64 && y > 0.0 && y < HEIGHT as f64, "{x} {y}");
+            assert!(
+                x > 0.0 && x < WIDTH as f64 && y > 0.0 && y < HEIGHT as f64,
+                "{x} {y}"
+            );
         }
     }
 }

@@ -620,6 +620,31 @@ fn stability_quick_cases_all_pass() {
     for c in cases {
         assert_eq!(c["pass"], true, "{c}");
     }
+    // The table for people: one line per case, its name, rounded figures with units, no raw JSON.
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(lines.len(), cases.len() + 1, "{stdout}");
+    for (line, c) in lines.iter().zip(cases) {
+        assert!(
+            line.starts_with("PASS ") && line.contains(c["name"].as_str().unwrap()),
+            "{line}"
+        );
+        assert!(!line.contains('{') && !line.contains("\":"), "{line}");
+        if c["name"].as_str().unwrap().starts_with("stiff beam") {
+            assert!(
+                line.contains(" m (plate theory ") && line.contains(" Newton iterations"),
+                "{line}"
+            );
+            // Three significant digits, not seventeen.
+            let tip = line
+                .split("tip ")
+                .nth(1)
+                .unwrap()
+                .split(' ')
+                .next()
+                .unwrap();
+            assert!(tip.len() <= 8, "{line}");
+        }
+    }
     let named = |prefix: &str| {
         cases
             .iter()
