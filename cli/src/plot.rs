@@ -13,6 +13,10 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Join the points (in the given order) with lines.
     pub lines: bool,
+    /// A text beside each point (empty: none; else one per point).
+    pub labels: Vec<String>,
+    /// A power law `y = exp(ln_a) · x^k` drawn as a thin line over the series' x range: `(k, ln_a)`.
+    pub fit: Option<(f64, f64)>,
 }
 
 /// A log–log plot.
@@ -39,10 +43,10 @@ pub const PALETTE: [[u8; 3]; 8] = [
     [23, 190, 207],
 ];
 
-const W: usize = 960;
+const W: usize = 1070;
 const H: usize = 640;
 const LEFT: usize = 110;
-const RIGHT: usize = 250;
+const RIGHT: usize = 360;
 const TOP: usize = 50;
 const BOTTOM: usize = 80;
 
@@ -135,6 +139,21 @@ fn decade_label(e: i32) -> String {
 /// # Errors
 /// A message when there is nothing to plot or the file cannot be written.
 pub fn render_png(plot: &Plot, path: &Path) -> Result<(), String> {
+    let px = render(plot).map_err(|e| format!("{}: {e}", path.display()))?;
+    let file = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), W as u32, H as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut w = enc
+        .write_header()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    w.write_image_data(&px)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    w.finish().map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Renders `plot` to RGB pixels (`W` × `H`).
+fn render(plot: &Plot) -> Result<Vec<u8>, String> {
     let pts: Vec<(f64, f64)> = plot
         .series
         .iter()
@@ -142,7 +161,7 @@ pub fn render_png(plot: &Plot, path: &Path) -> Result<(), String> {
         .filter(|&(x, y)| x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite())
         .collect();
     if pts.is_empty() {
-        return Err(format!("{}: no positive data to plot", path.display()));
+        return Err("no positive data to plot".into());
     }
     let range = |v: Vec<f64>| {
         let lo = v.iter().copied().fold(f64::INFINITY, f64::min).log10();
@@ -218,8 +237,38 @@ pub fn render_png(plot: &Plot, path: &Path) -> Result<(), String> {
                 c.line(w[0], w[1], s.color, 2);
             }
         }
+        if let Some((k, ln_a)) = s.fit {
+            // Over the series' own x range (so the line stays near the plot), in pieces of a few pixels,
+            // each drawn only when inside the frame.
+            let xs: Vec<f64> = s.points.iter().map(|p| p.0).filter(|x| *x > 0.0).collect();
+            let (lo, hi) = xs
+                .iter()
+                .fold((f64::INFINITY, 0.0_f64), |(a, b), &x| (a.min(x), b.max(x)));
+            if lo.is_finite() && hi > lo {
+                let steps = 64;
+                let at = |i: usize| {
+                    let x = (lo.ln() + (hi.ln() - lo.ln()) * i as f64 / steps as f64).exp();
+                    to_px(x, (ln_a + k * x.ln()).exp())
+                };
+                let inside = |(x, y): (i64, i64)| {
+                    x >= LEFT as i64
+                        && x <= (W - RIGHT) as i64
+                        && y >= TOP as i64
+                        && y <= (H - BOTTOM) as i64
+                };
+                for i in 0..steps {
+                    let (a, b) = (at(i), at(i + 1));
+                    if inside(a) && inside(b) {
+                        c.line(a, b, s.color, 1);
+                    }
+                }
+            }
+        }
         for &(x, y) in &p {
             c.rect(x - 4, y - 4, x + 4, y + 4, s.color);
+        }
+        for (label, &(x, y)) in s.labels.iter().zip(&p) {
+            c.text(x + 7, y - 12, label, 1, s.color, false);
         }
     }
     // Labels, title, legend.
@@ -252,14 +301,52 @@ pub fn render_png(plot: &Plot, path: &Path) -> Result<(), String> {
         c.rect(r + 20, y + 2, r + 32, y + 14, s.color);
         c.text(r + 40, y, &s.name, 2, black, false);
     }
-    let file = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), W as u32, H as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut w = enc
-        .write_header()
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    w.write_image_data(&c.px)
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    w.finish().map_err(|e| format!("{}: {e}", path.display()))
+    Ok(c.px)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pixel(px: &[u8], (x, y): (i64, i64)) -> [u8; 3] {
+        let o = 3 * (y as usize * W + x as usize);
+        [px[o], px[o + 1], px[o + 2]]
+    }
+
+    #[test]
+    fn fitted_lines_and_point_labels_are_drawn() {
+        let colour = PALETTE[1];
+        let points = vec![(10.0, 1.0), (100.0, 10.0), (1000.0, 100.0)];
+        let plot = |fit, labels| Plot {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: vec![Series {
+                name: "s".into(),
+                color: colour,
+                points: points.clone(),
+                lines: false,
+                labels,
+                fit,
+            }],
+        };
+        let bare = render(&plot(None, Vec::new())).unwrap();
+        let drawn = render(&plot(Some((1.0, 0.1f64.ln())), vec!["121".into(); 3])).unwrap();
+        // y = 0.1 x passes through the points: halfway between the first two (in log space) the fitted
+        // line is drawn, and nothing is there without it.
+        let (xa, xb, ya, yb) = (1.0, 3.0, 0.0, 2.0);
+        let (pw, ph) = ((W - LEFT - RIGHT) as f64, (H - TOP - BOTTOM) as f64);
+        let to_px = |x: f64, y: f64| {
+            (
+                LEFT as i64 + ((x.log10() - xa) / (xb - xa) * pw).round() as i64,
+                (H - BOTTOM) as i64 - ((y.log10() - ya) / (yb - ya) * ph).round() as i64,
+            )
+        };
+        let mid = to_px(10f64.powf(1.5), 10f64.powf(0.5));
+        let near = |px: &[u8]| (-2..=2).any(|d| pixel(px, (mid.0, mid.1 + d)) == colour);
+        assert!(near(&drawn) && !near(&bare));
+        // The labels add pixels of the series' colour to the right of each point.
+        let count = |px: &[u8]| px.chunks(3).filter(|p| *p == colour).count();
+        assert!(count(&drawn) > count(&bare) + 3 * 20);
+    }
 }
