@@ -349,3 +349,89 @@ fn evaluate_to_fills_the_callers_buffers() {
         .unwrap_err();
     assert!(err.to_string().contains("gradient"), "{err}");
 }
+
+/// A double well per vertex, `−½ a |x|² + ¼ b |x|⁴` (minimum on the sphere |x| = √(a/b)); near the origin its
+/// Hessian is negative definite, so Newton needs a large diagonal shift there.
+struct DoubleWell {
+    n: usize,
+    a: f64,
+    b: f64,
+    diag: Vec<usize>,
+}
+
+impl Energy for DoubleWell {
+    fn name(&self) -> &str {
+        "double-well"
+    }
+    fn n_vertices(&self) -> usize {
+        self.n
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        self.diag = (0..self.n)
+            .map(|v| {
+                pattern.find(v, v).ok_or(EvalError::Pattern {
+                    message: format!("no diagonal block for vertex {v}"),
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        let (a, b) = (self.a, self.b);
+        let mut e = 0.0;
+        for (i, p) in x.iter().enumerate() {
+            let r2 = p.norm_squared();
+            e += -0.5 * a * r2 + 0.25 * b * r2 * r2;
+            acc.add_gradient(i, &(p * (-a + b * r2)));
+            if request.hessian {
+                let h = Matrix3::identity() * (-a + b * r2) + p * p.transpose() * (2.0 * b);
+                acc.add_block(self.diag[i], i, i, &h);
+            }
+        }
+        Ok(e)
+    }
+}
+
+#[test]
+fn a_short_shifted_step_is_not_taken_for_convergence() {
+    // From near the top of the well the Hessian is −a·I: the shifted steps are short (about a third of
+    // |x|), far shorter than a user's absolute step tolerance of 1e-3. Newton must not stop there: it
+    // continues to the minimum and says so with a small gradient.
+    let well = DoubleWell {
+        n: 1,
+        a: 1e6,
+        b: 1e6,
+        diag: Vec::new(),
+    };
+    let mut system = System::new(1, vec![Box::new(well)]).unwrap();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-6,
+        step_tolerance: 1e-3,
+        max_iterations: 200,
+        ..NewtonParams::default()
+    };
+    let pins = Pins::new(1, Vec::new()).unwrap();
+    let mut newton = Newton::new(&system, &pins, Box::new(FaerLlt::default()), params).unwrap();
+    let mut x = vec![Vector3::new(1e-3, 0.0, 0.0)];
+    let stats = newton.minimize(&mut system, &mut x, None).unwrap();
+    let g = stats.gradient_norms.last().copied().unwrap();
+    assert!(stats.max_shift > 0.0, "the start needs a shift");
+    assert!(stats.iterations > 1, "{stats:?}");
+    // Stopped by the step test only after a full Newton step (≤ 1e-3) near the minimum |x| = 1, where
+    // Newton converges quadratically: the error is then about 1.5 · (1e-3)², the gradient (H = 2e6) a few N
+    // against 1e3 at the start.
+    println!(
+        "{} iterations, |x| − 1 = {:e}, gradient {g:e}",
+        stats.iterations,
+        x[0].norm() - 1.0
+    );
+    assert!((x[0].norm() - 1.0).abs() < 2e-6, "{}", x[0]);
+    assert!(g < 5.0, "gradient {g}");
+}
