@@ -139,12 +139,18 @@ pub enum MeshFileError {
 }
 
 /// Faces as read: polygons of vertex indices (already 0-based), and where they came from.
-struct Raw {
-    positions: Vec<Vector3<f64>>,
-    faces: Vec<Vec<usize>>,
+pub(crate) struct Raw {
+    pub(crate) positions: Vec<Vector3<f64>>,
+    pub(crate) faces: Vec<Vec<usize>>,
     /// 1-based lines of the vertices and faces (OBJ and OFF; empty for PLY).
-    vertex_lines: Vec<usize>,
-    face_lines: Vec<usize>,
+    pub(crate) vertex_lines: Vec<usize>,
+    pub(crate) face_lines: Vec<usize>,
+}
+
+/// A parse error at a (1-based) line.
+pub(crate) struct LineError {
+    pub(crate) line: usize,
+    pub(crate) message: String,
 }
 
 /// Reads a mesh file, the format chosen by its extension.
@@ -331,28 +337,45 @@ fn text_lines(reader: impl BufRead) -> impl Iterator<Item = Result<(usize, Strin
 }
 
 fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
+    parse_obj_records(reader).map_err(|e| format!("line {}: {}", e.line, e.message))
+}
+
+/// The `v` and `f` records of an OBJ file (faces of any corner count from 3), in file order; also what
+/// [`crate::obj::parse_obj`] reads.
+pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> {
     let mut raw = Raw {
         positions: Vec::new(),
         faces: Vec::new(),
         vertex_lines: Vec::new(),
         face_lines: Vec::new(),
     };
-    for item in text_lines(reader) {
-        let (lineno, line) = item?;
+    for (i, line) in reader.lines().enumerate() {
+        let lineno = i + 1;
+        let at = |message: String| LineError {
+            line: lineno,
+            message,
+        };
+        let line = line.map_err(|e| {
+            at(if e.kind() == std::io::ErrorKind::InvalidData {
+                "the line is not text (a binary file?)".to_string()
+            } else {
+                e.to_string()
+            })
+        })?;
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {
                 let mut c = [0.0; 3];
                 for (axis, slot) in c.iter_mut().enumerate() {
                     let w = words.next().ok_or_else(|| {
-                        format!(
-                            "line {lineno}: vertex has fewer than 3 coordinates (missing {})",
+                        at(format!(
+                            "vertex has fewer than 3 coordinates (missing {})",
                             ["x", "y", "z"][axis]
-                        )
+                        ))
                     })?;
                     *slot = w
                         .parse::<f64>()
-                        .map_err(|_| format!("line {lineno}: cannot parse coordinate `{w}`"))?;
+                        .map_err(|_| at(format!("cannot parse coordinate `{w}`")))?;
                 }
                 raw.positions.push(Vector3::new(c[0], c[1], c[2]));
                 raw.vertex_lines.push(lineno);
@@ -361,9 +384,9 @@ fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
                 let mut poly = Vec::new();
                 for corner in words {
                     let idx = corner.split('/').next().unwrap_or("");
-                    let value: i64 = idx.parse().map_err(|_| {
-                        format!("line {lineno}: cannot parse face index `{corner}`")
-                    })?;
+                    let value: i64 = idx
+                        .parse()
+                        .map_err(|_| at(format!("cannot parse face index `{corner}`")))?;
                     let n = raw.positions.len() as i64;
                     let resolved = match value {
                         v if v > 0 => v - 1,
@@ -371,17 +394,17 @@ fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
                         _ => -1,
                     };
                     if resolved < 0 {
-                        return Err(format!(
-                            "line {lineno}: face index {value} does not name a vertex (1-based, or negative relative to the {n} vertices so far)"
-                        ));
+                        return Err(at(format!(
+                            "face index {value} does not name a vertex (1-based, or negative relative to the {n} vertices so far)"
+                        )));
                     }
                     poly.push(resolved as usize);
                 }
                 if poly.len() < 3 {
-                    return Err(format!(
-                        "line {lineno}: face has {} corners (at least 3 are needed)",
+                    return Err(at(format!(
+                        "face has {} corners (at least 3 are needed)",
                         poly.len()
-                    ));
+                    )));
                 }
                 raw.faces.push(poly);
                 raw.face_lines.push(lineno);

@@ -35,71 +35,28 @@ pub fn read_obj(path: impl AsRef<Path>) -> Result<TriMesh, ObjError> {
 /// # Errors
 /// As [`read_obj`].
 pub fn parse_obj(reader: impl BufRead, name: &str) -> Result<TriMesh, ObjError> {
-    let mut positions = Vec::new();
-    let mut triangles = Vec::new();
-    for (i, line) in reader.lines().enumerate() {
-        let lineno = i + 1;
-        let line = line.map_err(|source| ObjError::Io {
-            path: name.to_string(),
-            source,
-        })?;
-        let parse_err = |message: String| ObjError::Parse {
-            path: name.to_string(),
-            line: lineno,
-            message,
-        };
-        let mut words = line.split_whitespace();
-        match words.next() {
-            Some("v") => {
-                let mut c = [0.0; 3];
-                for (axis, slot) in c.iter_mut().enumerate() {
-                    let w = words.next().ok_or_else(|| {
-                        parse_err(format!(
-                            "vertex has fewer than 3 coordinates (missing {})",
-                            ["x", "y", "z"][axis]
-                        ))
-                    })?;
-                    *slot = w
-                        .parse::<f64>()
-                        .map_err(|_| parse_err(format!("cannot parse coordinate `{w}`")))?;
-                }
-                positions.push(Vector3::new(c[0], c[1], c[2]));
+    let raw = crate::meshio::parse_obj_records(reader).map_err(|e| ObjError::Parse {
+        path: name.to_string(),
+        line: e.line,
+        message: e.message,
+    })?;
+    let mut triangles = Vec::with_capacity(raw.faces.len());
+    for (poly, &line) in raw.faces.iter().zip(&raw.face_lines) {
+        match poly[..] {
+            [a, b, c] => triangles.push([a, b, c]),
+            _ => {
+                return Err(ObjError::Parse {
+                    path: name.to_string(),
+                    line,
+                    message: format!(
+                        "face has {} corners; only triangles are supported (hinge_core::meshio::read_mesh fan-triangulates polygons)",
+                        poly.len()
+                    ),
+                });
             }
-            Some("f") => {
-                let corners: Vec<&str> = words.collect();
-                if corners.len() != 3 {
-                    return Err(parse_err(format!(
-                        "face has {} corners; only triangles are supported",
-                        corners.len()
-                    )));
-                }
-                let mut tri = [0usize; 3];
-                for (k, corner) in corners.iter().enumerate() {
-                    let idx = corner.split('/').next().unwrap_or("");
-                    let raw: i64 = idx
-                        .parse()
-                        .map_err(|_| parse_err(format!("cannot parse face index `{corner}`")))?;
-                    let n = positions.len() as i64;
-                    let resolved = if raw > 0 {
-                        raw - 1
-                    } else if raw < 0 {
-                        n + raw
-                    } else {
-                        -1
-                    };
-                    if resolved < 0 {
-                        return Err(parse_err(format!(
-                            "face index {raw} does not name a vertex (1-based, or negative relative to the {n} vertices so far)"
-                        )));
-                    }
-                    tri[k] = resolved as usize;
-                }
-                triangles.push(tri);
-            }
-            _ => {}
         }
     }
-    TriMesh::new(positions, triangles).map_err(|source| ObjError::Mesh {
+    TriMesh::new(raw.positions, triangles).map_err(|source| ObjError::Mesh {
         path: name.to_string(),
         source,
     })
