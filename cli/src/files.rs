@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use hinge_core::TriMesh;
-use hinge_core::meshio::{MeshFormat, read_mesh};
+use hinge_core::meshio::read_mesh;
 
 /// Reads a mesh file (OBJ, OFF or PLY by extension); polygons with more than three corners are
 /// fan-triangulated, and one line on stderr says how many.
@@ -22,16 +22,4 @@ pub fn read(path: &Path) -> Result<TriMesh, String> {
         );
     }
     Ok(file.mesh)
-}
-
-/// The output format of frames: `obj` or `ply` (binary little endian).
-///
-/// # Errors
-/// A one-line message for any other name.
-pub fn frame_format(name: &str) -> Result<MeshFormat, String> {
-    match name {
-        "obj" => Ok(MeshFormat::Obj),
-        "ply" => Ok(MeshFormat::Ply),
-        other => Err(format!("--format {other}: expected obj or ply")),
-    }
 }

@@ -59,8 +59,8 @@ pub struct RunArgs {
     #[arg(long)]
     pub no_frames: bool,
     /// Frame file format: `obj` or `ply` (binary little endian).
-    #[arg(long, default_value = "obj")]
-    pub format: String,
+    #[arg(long, value_enum, default_value_t = FrameFormat::Obj)]
+    pub format: FrameFormat,
     /// Solve for the static equilibrium (Newton on the potential energy, no inertia or damping) instead of
     /// stepping frames; writes one frame, `static.obj` (or `.ply`).
     ///
@@ -70,6 +70,26 @@ pub struct RunArgs {
     /// `"interrupted": true` and exits with code 130.
     #[arg(long = "static")]
     pub statics: bool,
+}
+
+/// The file format of written frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum FrameFormat {
+    /// Wavefront OBJ (17 significant digits).
+    #[default]
+    Obj,
+    /// Binary little-endian PLY (doubles).
+    Ply,
+}
+
+impl FrameFormat {
+    /// The mesh format it writes.
+    pub fn mesh_format(self) -> MeshFormat {
+        match self {
+            FrameFormat::Obj => MeshFormat::Obj,
+            FrameFormat::Ply => MeshFormat::Ply,
+        }
+    }
 }
 
 /// What a run produced.
@@ -573,7 +593,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         scene.set_resolution(r)?;
     }
     let rest = scene.rest_mesh(base.as_deref())?;
-    let format = crate::files::frame_format(&args.format)?;
+    let format = args.format.mesh_format();
     let (threads, warning) = crate::limits::threads(args.threads)?;
     if let Some(w) = warning {
         eprintln!("{w}");

@@ -1304,9 +1304,8 @@ fn mesh_formats_through_the_command_line() {
     assert!(hinge_core::meshio::read_mesh(out.join("static.ply")).is_ok());
     let o = hinge(&["run", "drape", "--format", "stl"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && err.contains("expected obj or ply"),
-        "{err}"
-    );
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("stl") && err.contains("--format"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
