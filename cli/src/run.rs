@@ -572,8 +572,10 @@ static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 /// Installs the Ctrl-C handler (once per process): the first Ctrl-C asks the run to stop after the current
 /// frame, a second one exits at once with code 130.
 fn install_interrupt_handler() {
-    // An error means a handler is already installed (an earlier run in this process): keep it.
-    let _ = ctrlc::try_set_handler(|| {
+    // `set_handler` also replaces an inherited "ignore" (a shell starts background jobs of scripts with
+    // SIGINT ignored): an explicit `kill -INT` then still ends the run cleanly. An error means this process
+    // has installed the handler already (an earlier run): keep it.
+    let _ = ctrlc::set_handler(|| {
         if INTERRUPTED.swap(true, Ordering::SeqCst) {
             std::process::exit(130);
         }
