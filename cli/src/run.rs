@@ -158,8 +158,8 @@ pub struct Built {
     pub solver: Box<dyn LinearSolver>,
     /// Newton parameters.
     pub params: NewtonParams,
-    /// Sphere obstacles (centre, radius), for the clearance report.
-    pub spheres: Vec<(Vector3<f64>, f64)>,
+    /// The obstacles (for the clearance report and the pictures).
+    pub obstacles: Vec<Obstacle>,
 }
 
 /// Builds the energies of `scene` on `rest` (with the scene's viscous damping when `damped`).
@@ -201,16 +201,13 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             Drag::new(masses.clone(), scene.drag).map_err(|e| format!("drag: {e}"))?,
         ));
     }
-    let mut spheres = Vec::new();
+    let mut obstacles = Vec::new();
     for (i, o) in scene.obstacles.iter().enumerate() {
         let obstacle = match (o.center, o.radius, o.point, o.normal) {
-            (Some(c), Some(r), _, _) => {
-                spheres.push((Vector3::from(c), r));
-                Obstacle::Sphere {
-                    center: Vector3::from(c),
-                    radius: r,
-                }
-            }
+            (Some(c), Some(r), _, _) => Obstacle::Sphere {
+                center: Vector3::from(c),
+                radius: r,
+            },
             (_, _, Some(p), Some(nrm)) => Obstacle::Plane {
                 point: Vector3::from(p),
                 normal: Vector3::from(nrm),
@@ -221,6 +218,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             Contact::new(n, obstacle, o.stiffness, o.margin)
                 .map_err(|e| format!("obstacles[{i}]: {e}"))?,
         ));
+        obstacles.push(obstacle);
     }
     let pins = Pins::new(n, scene.pinned(rest)?).map_err(|e| format!("pins: {e}"))?;
     let system = System::new(n, terms).map_err(|e| e.to_string())?;
@@ -247,7 +245,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         pins,
         solver,
         params,
-        spheres,
+        obstacles,
     })
 }
 
@@ -272,9 +270,13 @@ fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
     end.iter().map(|&v| r[v].z - x[v].z).sum::<f64>() / end.len().max(1) as f64
 }
 
-fn min_clearance(spheres: &[(Vector3<f64>, f64)], x: &[Vector3<f64>]) -> Option<f64> {
-    spheres
+fn min_clearance(obstacles: &[Obstacle], x: &[Vector3<f64>]) -> Option<f64> {
+    obstacles
         .iter()
+        .filter_map(|o| match o {
+            Obstacle::Sphere { center, radius } => Some((center, radius)),
+            Obstacle::Plane { .. } => None,
+        })
         .map(|(c, r)| {
             x.iter()
                 .map(|p| (p - c).norm() - r)
@@ -302,7 +304,7 @@ pub fn equilibrium(
         pins,
         solver,
         params,
-        spheres,
+        obstacles,
         ..
     } = build(scene, rest, false)?;
     // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
@@ -324,7 +326,7 @@ pub fn equilibrium(
         other_energy_seconds: 0.0,
         linear_solve_seconds: stats.factor_seconds + stats.solve_seconds,
         total_seconds: 0.0,
-        min_clearance: min_clearance(&spheres, &x),
+        min_clearance: min_clearance(&obstacles, &x),
         n_vertices: rest.n_vertices(),
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
@@ -341,27 +343,11 @@ pub fn equilibrium(
         let name = format!("static.{}", o.format.extension());
         write_mesh(o.dir.join(name), &x, rest.triangles()).map_err(|e| e.to_string())?;
         if o.pictures {
-            write_pictures(o.dir, scene, &[x.clone()], rest.triangles(), 1.0)?;
+            write_pictures(o.dir, &obstacles, &[x.clone()], rest.triangles(), 1.0)?;
         }
     }
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
-}
-
-/// The obstacles of a scene as shapes to draw.
-pub fn shapes(scene: &Scene) -> Vec<crate::view::Shape> {
-    scene
-        .obstacles
-        .iter()
-        .filter_map(|o| match (o.center, o.radius, o.point, o.normal) {
-            (Some(c), Some(r), _, _) => Some(crate::view::Shape::Sphere(Vector3::from(c), r)),
-            (_, _, Some(p), Some(n)) => Some(crate::view::Shape::Plane(
-                Vector3::from(p),
-                Vector3::from(n),
-            )),
-            _ => None,
-        })
-        .collect()
 }
 
 /// Writes `animation.png` (the sampled frames, each shown for `seconds` of simulated time, looping),
@@ -371,13 +357,14 @@ pub fn shapes(scene: &Scene) -> Vec<crate::view::Shape> {
 /// A one-line message naming the file.
 pub fn write_pictures(
     dir: &std::path::Path,
-    scene: &Scene,
+    obstacles: &[Obstacle],
     samples: &[Vec<Vector3<f64>>],
     triangles: &[[usize; 3]],
     seconds: f64,
 ) -> Result<(), String> {
-    let shapes = shapes(scene);
-    let pictures = crate::view::render(samples, triangles, &shapes)?;
+    // Meshed once, for the pictures and the file.
+    let meshes = crate::view::obstacle_meshes(obstacles, crate::view::scene_box(samples))?;
+    let pictures = crate::view::render(samples, triangles, &meshes);
     let Some(last) = pictures.last() else {
         return Ok(());
     };
@@ -385,7 +372,7 @@ pub fn write_pictures(
     let delay = (seconds * 1e3).round().clamp(40.0, 2000.0) as u16;
     crate::view::write_apng(&dir.join("animation.png"), &pictures, delay)?;
     crate::view::write_png(&dir.join("final.png"), last)?;
-    crate::view::write_obstacles(&dir.join("obstacles.obj"), &shapes, samples)
+    crate::view::write_obstacles(&dir.join("obstacles.obj"), &meshes)
 }
 
 fn bending_term<P: HingePsi + Send + 'static>(
@@ -462,7 +449,7 @@ pub fn simulate_until(
         pins,
         solver,
         params,
-        spheres,
+        obstacles,
     } = build(scene, rest, true)?;
     let mut stepper = ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
         .map_err(|e| e.to_string())?;
@@ -544,13 +531,13 @@ pub fn simulate_until(
     if let Some(o) = out.filter(|o| o.pictures) {
         write_pictures(
             o.dir,
-            scene,
+            &obstacles,
             &samples,
             rest.triangles(),
             scene.dt * every as f64,
         )?;
     }
-    summary.min_clearance = min_clearance(&spheres, &x);
+    summary.min_clearance = min_clearance(&obstacles, &x);
     summary.far_end_drop = far_end_drop(rest, &x);
     summary.max_speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
     summary.total_seconds = start.elapsed().as_secs_f64();

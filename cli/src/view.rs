@@ -9,6 +9,7 @@ use std::path::Path;
 
 use hinge_core::nalgebra::Vector3;
 use hinge_core::shapes::icosphere;
+use hinge_energies::contact::Obstacle;
 
 /// Picture size in pixels.
 pub const WIDTH: usize = 400;
@@ -26,19 +27,10 @@ pub const PLANE_COLOUR: [f64; 3] = [190.0, 190.0, 190.0];
 /// The background.
 pub const BACKGROUND: [u8; 3] = [250, 250, 250];
 
-/// An obstacle to draw.
-#[derive(Debug, Clone, Copy)]
-pub enum Shape {
-    /// A sphere (centre, radius).
-    Sphere(Vector3<f64>, f64),
-    /// A plane (a point, the unit normal).
-    Plane(Vector3<f64>, Vector3<f64>),
-}
-
 /// Triangles with a colour, ready to rasterise.
-struct Layer {
-    positions: Vec<Vector3<f64>>,
-    triangles: Vec<[usize; 3]>,
+struct Layer<'a> {
+    positions: &'a [Vector3<f64>],
+    triangles: &'a [[usize; 3]],
     colour: [f64; 3],
 }
 
@@ -54,19 +46,21 @@ pub struct ObstacleMesh {
 }
 
 /// The obstacles as triangle meshes: spheres as subdivided icosahedra, planes as a square of side
-/// `2 · extent` centred under `centre` (the middle of the scene).
+/// `2 · extent` centred under `centre` (the middle of the scene: [`scene_box`]).
 ///
 /// # Errors
 /// A message when a sphere cannot be meshed (a non-positive radius).
 pub fn obstacle_meshes(
-    shapes: &[Shape],
-    centre: Vector3<f64>,
-    extent: f64,
+    obstacles: &[Obstacle],
+    (centre, extent): (Vector3<f64>, f64),
 ) -> Result<Vec<ObstacleMesh>, String> {
     let mut out = Vec::new();
-    for s in shapes {
-        match *s {
-            Shape::Sphere(c, r) => {
+    for o in obstacles {
+        match *o {
+            Obstacle::Sphere {
+                center: c,
+                radius: r,
+            } => {
                 let m = icosphere(3, r).map_err(|e| format!("sphere obstacle: {e}"))?;
                 out.push(ObstacleMesh {
                     positions: m.positions().iter().map(|p| p + c).collect(),
@@ -74,7 +68,10 @@ pub fn obstacle_meshes(
                     sphere: true,
                 });
             }
-            Shape::Plane(p, n) => {
+            Obstacle::Plane {
+                point: p,
+                normal: n,
+            } => {
                 let n = n.normalize();
                 // Two directions in the plane.
                 let a = if n.x.abs() < 0.9 {
@@ -175,7 +172,7 @@ impl Canvas {
     fn draw(&mut self, cam: &Camera, layer: &Layer) {
         // Light from the camera's upper left; both faces lit (two-sided).
         let light = (-cam.forward + cam.up * 0.6 - cam.right * 0.4).normalize();
-        for t in &layer.triangles {
+        for t in layer.triangles {
             let [a, b, c] = t.map(|i| layer.positions[i]);
             let n = (b - a).cross(&(c - a));
             let len = n.norm();
@@ -218,28 +215,23 @@ impl Canvas {
     }
 }
 
-/// Renders `frames` (positions of the mesh `triangles`) with the obstacles `shapes` from one camera fitted
+/// Renders `frames` (positions of the mesh `triangles`) with the obstacle meshes from one camera fitted
 /// to all of them: one RGB picture ([`WIDTH`] × [`HEIGHT`]) per frame.
-///
-/// # Errors
-/// A message when an obstacle cannot be meshed.
 pub fn render(
     frames: &[Vec<Vector3<f64>>],
     triangles: &[[usize; 3]],
-    shapes: &[Shape],
-) -> Result<Vec<Vec<u8>>, String> {
-    let (centre, extent) = scene_box(frames);
-    let obstacles = obstacle_meshes(shapes, centre, extent)?;
+    obstacles: &[ObstacleMesh],
+) -> Vec<Vec<u8>> {
     let layers: Vec<Layer> = obstacles
-        .into_iter()
+        .iter()
         .map(|o| Layer {
             colour: if o.sphere {
                 SPHERE_COLOUR
             } else {
                 PLANE_COLOUR
             },
-            positions: o.positions,
-            triangles: o.triangles,
+            positions: &o.positions,
+            triangles: &o.triangles,
         })
         .collect();
     // The camera sees every frame and the spheres (planes are unbounded: only their square under the mesh).
@@ -259,14 +251,14 @@ pub fn render(
         canvas.draw(
             &cam,
             &Layer {
-                positions: x.clone(),
-                triangles: triangles.to_vec(),
+                positions: x,
+                triangles,
                 colour: MESH_COLOUR,
             },
         );
         pictures.push(canvas.rgb);
     }
-    Ok(pictures)
+    pictures
 }
 
 /// The centre of the box holding every frame, and the half-diagonal of that box (at least 1e-3).
@@ -330,20 +322,15 @@ pub fn write_png(path: &Path, picture: &[u8]) -> Result<(), String> {
     writer.finish().map_err(|e| err(&e))
 }
 
-/// Writes the obstacles (as drawn) to one OBJ file.
+/// Writes the obstacle meshes (as drawn) to one OBJ file.
 ///
 /// # Errors
 /// A one-line message naming the file.
-pub fn write_obstacles(
-    path: &Path,
-    shapes: &[Shape],
-    frames: &[Vec<Vector3<f64>>],
-) -> Result<(), String> {
-    let (centre, extent) = scene_box(frames);
+pub fn write_obstacles(path: &Path, meshes: &[ObstacleMesh]) -> Result<(), String> {
     let (mut x, mut t) = (Vec::new(), Vec::new());
-    for o in obstacle_meshes(shapes, centre, extent)? {
+    for o in meshes {
         let base = x.len();
-        x.extend(o.positions);
+        x.extend_from_slice(&o.positions);
         t.extend(o.triangles.iter().map(|f| f.map(|i| i + base)));
     }
     hinge_core::obj::write_obj(path, &x, &t).map_err(|e| e.to_string())
@@ -375,11 +362,16 @@ mod tests {
     #[test]
     fn the_nearer_surface_is_drawn() {
         let cam = Camera::fit([Vector3::zeros()].into_iter());
-        let sphere = [Shape::Sphere(Vector3::zeros(), 0.5)];
+        let sphere = [Obstacle::Sphere {
+            center: Vector3::zeros(),
+            radius: 0.5,
+        }];
         // A square between the camera and the sphere hides it; behind the sphere it is hidden.
         for (offset, mesh_in_front) in [(-3.0, true), (3.0, false)] {
             let (x, t) = square(cam.forward * offset, cam.forward);
-            let pictures = render(&[x], &t, &sphere).unwrap();
+            let frames = [x];
+            let meshes = obstacle_meshes(&sphere, scene_box(&frames)).unwrap();
+            let pictures = render(&frames, &t, &meshes);
             let [r, g, b] = centre_pixel(&pictures[0]).map(i32::from);
             if mesh_in_front {
                 assert!(

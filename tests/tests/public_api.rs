@@ -17,6 +17,17 @@ use hinge_energies::pins::Pins;
 use hinge_solver::linear::{FaerLlt, LinearSolver, LowerCsc};
 use hinge_solver::newton::{Newton, NewtonParams};
 
+/// The value slot of each vertex's diagonal block, as a user energy's `bind` finds them.
+fn diagonal_blocks(pattern: &SymmetricPattern, n: usize) -> Result<Vec<usize>, EvalError> {
+    (0..n)
+        .map(|v| {
+            pattern.find(v, v).ok_or(EvalError::Pattern {
+                message: format!("no diagonal block for vertex {v}"),
+            })
+        })
+        .collect()
+}
+
 /// A user energy: every vertex tied to an anchor by a spring, `½ c ‖x_i − a_i‖²`.
 struct Anchors {
     anchors: Vec<Vector3<f64>>,
@@ -33,13 +44,7 @@ impl Energy for Anchors {
     }
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        self.diag = (0..self.anchors.len())
-            .map(|v| {
-                pattern.find(v, v).ok_or(EvalError::Pattern {
-                    message: format!("no diagonal block for vertex {v}"),
-                })
-            })
-            .collect::<Result<_, _>>()?;
+        self.diag = diagonal_blocks(pattern, self.anchors.len())?;
         Ok(())
     }
     fn add_to(
@@ -368,13 +373,7 @@ impl Energy for DoubleWell {
     }
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        self.diag = (0..self.n)
-            .map(|v| {
-                pattern.find(v, v).ok_or(EvalError::Pattern {
-                    message: format!("no diagonal block for vertex {v}"),
-                })
-            })
-            .collect::<Result<_, _>>()?;
+        self.diag = diagonal_blocks(pattern, self.n)?;
         Ok(())
     }
     fn add_to(
