@@ -2,8 +2,10 @@
 //! ([`hinge_core::pattern::SymmetricPattern`]'s layout): analyze once per pattern, factor per Newton
 //! iteration, solve per right-hand side.
 
+use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::solvers::SolveCore;
-use faer::sparse::linalg::solvers::{Llt, Lu, SymbolicLlt, SymbolicLu};
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
+use faer::sparse::linalg::solvers::{Lu, SymbolicLu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use hinge_core::export::CsrLayout;
@@ -120,13 +122,26 @@ fn check_finite(x: &[f64]) -> Result<(), LinearError> {
 }
 
 /// faer's sparse supernodal/simplicial LLᵀ with the symbolic analysis reused across factorizations (the
-/// default backend).
-#[derive(Debug, Default)]
+/// default backend). The factor's storage and faer's work space are kept too: once the first
+/// factorization has run, neither factoring nor solving allocates.
+#[derive(Default)]
 pub struct FaerLlt {
     pattern: Option<LowerCsc>,
-    symbolic: Option<SymbolicLlt<usize>>,
-    numeric: Option<Llt<usize, f64>>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    factor: Vec<f64>,
+    factored: bool,
+    stack: Option<MemBuffer>,
     analyses: usize,
+}
+
+impl std::fmt::Debug for FaerLlt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FaerLlt")
+            .field("n", &self.pattern.as_ref().map(|p| p.n))
+            .field("factored", &self.factored)
+            .field("analyses", &self.analyses)
+            .finish()
+    }
 }
 
 impl LinearSolver for FaerLlt {
@@ -142,18 +157,25 @@ impl LinearSolver for FaerLlt {
             None,
             &pattern.row_idx,
         );
-        self.symbolic = Some(
-            SymbolicLlt::try_new(sym, Side::Lower)
-                .map_err(|e| LinearError::Faer(format!("{e:?}")))?,
-        );
+        let symbolic =
+            factorize_symbolic_cholesky(sym, Side::Lower, Default::default(), Default::default())
+                .map_err(|e| LinearError::Faer(format!("{e:?}")))?;
+        let par = faer::get_global_parallelism();
+        self.stack = Some(MemBuffer::new(
+            symbolic
+                .factorize_numeric_llt_scratch::<f64>(par, Default::default())
+                .or(symbolic.solve_in_place_scratch::<f64>(1, par)),
+        ));
+        self.symbolic = Some(symbolic);
         self.pattern = Some(pattern.clone());
-        self.numeric = None;
+        self.factored = false;
         self.analyses += 1;
         Ok(())
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
-        let (Some(p), Some(s)) = (&self.pattern, &self.symbolic) else {
+        let (Some(p), Some(s), Some(stack)) = (&self.pattern, &self.symbolic, &mut self.stack)
+        else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
         if values.len() != p.row_idx.len() {
@@ -163,29 +185,47 @@ impl LinearSolver for FaerLlt {
                 p.row_idx.len()
             )));
         }
+        self.factored = false;
+        self.factor.resize(s.len_val(), 0.0);
         let sym = SymbolicSparseColMatRef::new_checked(p.n, p.n, &p.col_ptr, None, &p.row_idx);
-        let mat = SparseColMatRef::new(sym, values);
-        self.numeric = None;
-        match Llt::try_new_with_symbolic(s.clone(), mat, Side::Lower) {
-            Ok(l) => {
-                self.numeric = Some(l);
+        match s.factorize_numeric_llt(
+            &mut self.factor,
+            SparseColMatRef::new(sym, values),
+            Side::Lower,
+            Default::default(),
+            faer::get_global_parallelism(),
+            MemStack::new(stack),
+            Default::default(),
+        ) {
+            Ok(_) => {
+                self.factored = true;
                 Ok(())
             }
-            Err(faer::sparse::linalg::LltError::Numeric(
-                faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index },
-            )) => Err(LinearError::NotPositiveDefinite { index }),
-            Err(e) => Err(LinearError::Faer(format!("{e:?}"))),
+            Err(faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index }) => {
+                Err(LinearError::NotPositiveDefinite { index })
+            }
         }
     }
 
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
-        let Some(l) = &self.numeric else {
+        let (Some(s), Some(stack), true) = (&self.symbolic, &mut self.stack, self.factored) else {
             return Err(LinearError::Usage(
                 "solve before a successful factor".into(),
             ));
         };
         let n = rhs.len();
-        l.solve_in_place_with_conj(Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1));
+        if n != s.nrows() {
+            return Err(LinearError::Usage(format!(
+                "right-hand side of length {n} for a matrix of dimension {}",
+                s.nrows()
+            )));
+        }
+        LltRef::new(s, &self.factor).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(rhs, n, 1),
+            faer::get_global_parallelism(),
+            MemStack::new(stack),
+        );
         check_finite(rhs)
     }
 

@@ -34,8 +34,14 @@ fn spring_system(rest: &TriMesh, with_bending: bool) -> System {
 
 /// M/Δt² + H of a stretched spring network: symmetric positive definite.
 fn spd_system() -> (Reduced, Vec<f64>) {
-    let rest = cloth(8);
-    let mut sys = spring_system(&rest, false);
+    spd_system_of(8, false)
+}
+
+/// A mass-spring (and bending) Hessian plus inertia on a `cells × cells` cloth (with bending, 40 cells
+/// factor supernodally).
+fn spd_system_of(cells: usize, with_bending: bool) -> (Reduced, Vec<f64>) {
+    let rest = cloth(cells);
+    let mut sys = spring_system(&rest, with_bending);
     let x: Vec<_> = rest.positions().iter().map(|p| p * 1.1).collect();
     let e = sys
         .evaluate(&x, Request::ALL, Parallelism::Sequential)
@@ -874,4 +880,33 @@ fn unit_free_stopping_tests() {
     let d = NewtonParams::default();
     assert!(!d.converged(1e-7, 1.0, Some((1.0, 0.0))));
     assert!(d.converged(1e-9, 1.0, None));
+}
+
+#[test]
+fn refactoring_with_new_values_forgets_the_old_ones() {
+    // FaerLlt keeps its factor storage between factorizations: a later factorization must not see an
+    // earlier one's values, and a failed one leaves nothing to solve with.
+    let (red, vals) = spd_system_of(20, true);
+    let n = red.csc.n;
+    // 2A + 10 I: positive definite too, other values in every slot.
+    let mut other: Vec<f64> = vals.iter().map(|v| 2.0 * v).collect();
+    for &k in &red.diag {
+        other[k] += 10.0;
+    }
+    let b: Vec<f64> = (0..n).map(|i| ((i * 31) % 11) as f64 - 5.0).collect();
+    let mut llt = FaerLlt::default();
+    llt.analyze(&red.csc).unwrap();
+    let mut ax = vec![0.0; n];
+    for m in [&vals, &other, &vals, &other] {
+        llt.factor(m).unwrap();
+        let mut x = b.clone();
+        llt.solve(&mut x).unwrap();
+        red.csc.mul(m, &x, &mut ax);
+        assert!(rel_error(&ax, &b) < 1e-10, "{}", rel_error(&ax, &b));
+    }
+    let mut ind = vals.clone();
+    ind[red.diag[3]] = -1e6;
+    assert!(llt.factor(&ind).is_err());
+    let mut x = b.clone();
+    assert!(matches!(llt.solve(&mut x), Err(LinearError::Usage(_))));
 }
