@@ -11,6 +11,7 @@ use std::time::Instant;
 
 use clap::Args;
 use hinge_core::TriMesh;
+use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::meshio::{MeshFormat, write_mesh};
@@ -175,15 +176,17 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         stiffness_from_material(m.young, m.thickness, m.poisson)
     };
     let kd = if damped { scene.bending.damping } else { 0.0 };
+    let factors = anisotropy_factors(scene, rest)?;
+    let f = factors.as_deref();
     let bending = match scene.bending.energy.as_str() {
-        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd)?,
-        "willmore" => bending_term(rest, Willmore { k }, kd)?,
-        "bridson" => bending_term(rest, Bridson { k }, kd)?,
+        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd, f)?,
+        "willmore" => bending_term(rest, Willmore { k }, kd, f)?,
+        "bridson" => bending_term(rest, Bridson { k }, kd, f)?,
         "custom" => match scene.custom_psi(k)? {
-            crate::scene::CustomPsi::Small(p) => bending_term(rest, p, kd)?,
-            crate::scene::CustomPsi::Large(p) => bending_term(rest, p, kd)?,
+            crate::scene::CustomPsi::Small(p) => bending_term(rest, p, kd, f)?,
+            crate::scene::CustomPsi::Large(p) => bending_term(rest, p, kd, f)?,
         },
-        _ => bending_term(rest, TanBending { k }, kd)?,
+        _ => bending_term(rest, TanBending { k }, kd, f)?,
     };
     let masses = lumped_masses(rest, m.density);
     let mut terms: Vec<Box<dyn Energy>> = vec![
@@ -375,7 +378,45 @@ pub fn write_pictures(
     crate::view::write_obstacles(&dir.join("obstacles.obj"), &meshes)
 }
 
+/// The per-hinge factors of `[bending.anisotropy]` (none when the scene has no such table).
+///
+/// # Errors
+/// A one-line message naming the key, hinge or triangle.
+pub fn anisotropy_factors(scene: &Scene, rest: &TriMesh) -> Result<Option<Vec<f64>>, String> {
+    use hinge_core::anisotropy::{Anisotropy, MaterialDirection};
+    let Some(spec) = &scene.bending.anisotropy else {
+        return Ok(None);
+    };
+    let law = Anisotropy::new(spec.warp, spec.weft).map_err(|e| format!("bending.anisotropy: {e}"))?;
+    let err = |e: hinge_core::anisotropy::AnisotropyError| format!("bending.anisotropy: {e}");
+    Ok(Some(match &spec.direction {
+        crate::scene::DirectionSpec::Vector(d) => law
+            .hinge_factors(rest, &MaterialDirection::Constant(Vector3::from(*d)))
+            .map_err(err)?,
+        crate::scene::DirectionSpec::Name(_) => {
+            let uvs = scene.rest_uvs(rest)?;
+            law.hinge_factors(rest, &MaterialDirection::Uv(&uvs))
+                .map_err(err)?
+        }
+    }))
+}
+
 fn bending_term<P: HingePsi + Send + 'static>(
+    rest: &TriMesh,
+    psi: P,
+    damping: f64,
+    anisotropy: Option<&[f64]>,
+) -> Result<Box<dyn Energy>, String>
+where
+    P::Params: Send + Sync,
+{
+    match anisotropy {
+        Some(f) => hinge_term(rest, Anisotropic::new(psi, f.to_vec()), damping),
+        None => hinge_term(rest, psi, damping),
+    }
+}
+
+fn hinge_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
     damping: f64,

@@ -5,13 +5,14 @@
 use std::path::{Path, PathBuf};
 
 use hinge_core::TriMesh;
+use hinge_core::anisotropy::TriangleUv;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
-pub const BUILT_IN: [(&str, &str); 7] = [
+pub const BUILT_IN: [(&str, &str); 8] = [
     ("drape", include_str!("../scenes/drape.toml")),
     ("shell-drop", include_str!("../scenes/shell-drop.toml")),
     ("beam1", include_str!("../scenes/beam1.toml")),
@@ -19,6 +20,10 @@ pub const BUILT_IN: [(&str, &str); 7] = [
     ("beam3", include_str!("../scenes/beam3.toml")),
     ("beam4", include_str!("../scenes/beam4.toml")),
     ("beam5", include_str!("../scenes/beam5.toml")),
+    (
+        "anisotropic-drape",
+        include_str!("../scenes/anisotropic-drape.toml"),
+    ),
 ];
 
 /// The one-line description of a scene's TOML text: the first sentence of its leading comment, without the
@@ -69,6 +74,10 @@ pub struct Scene {
     /// Solver settings.
     #[serde(default)]
     pub solver: SolverSpec,
+    /// The directory of the scene file (what a relative mesh path is resolved against; none for a
+    /// built-in scene). Set by [`load`].
+    #[serde(skip)]
+    pub base: Option<PathBuf>,
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -148,6 +157,9 @@ pub struct BendingSpec {
     /// `hinge_energies::bending::plate_consistent_stiffness`).
     #[serde(default = "default_calibration")]
     pub calibration: String,
+    /// Warp/weft anisotropy (none: isotropic).
+    #[serde(default)]
+    pub anisotropy: Option<AnisotropySpec>,
 }
 
 /// A run-time ψ with the capacity its expression needs: 8 hoisted values per hinge (the fast default), or 32.
@@ -201,8 +213,40 @@ impl Default for BendingSpec {
             params: Default::default(),
             damping: 0.0,
             calibration: default_calibration(),
+            anisotropy: None,
         }
     }
+}
+
+/// `[bending.anisotropy]`: warp/weft bending (see `hinge_core::anisotropy`). Every hinge's ψ is multiplied
+/// by `1 + warp·sin²φ + weft·cos²φ`, φ the angle between its rest edge and the warp direction.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AnisotropySpec {
+    /// `k_warp / k_bend`: extra stiffness of folds across the warp (that bend the warp threads).
+    #[serde(default)]
+    pub warp: f64,
+    /// `k_weft / k_bend`: extra stiffness of folds along the warp (that bend the weft threads).
+    #[serde(default)]
+    pub weft: f64,
+    /// The warp direction: a vector `[x, y, z]` (projected onto the surface), or `"uv"` for the direction
+    /// of increasing u of the mesh's texture coordinates (a grid's u runs along x).
+    #[serde(default = "default_warp_direction")]
+    pub direction: DirectionSpec,
+}
+
+/// The warp direction of [`AnisotropySpec`].
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum DirectionSpec {
+    /// A constant direction.
+    Vector([f64; 3]),
+    /// `uv`.
+    Name(String),
+}
+
+fn default_warp_direction() -> DirectionSpec {
+    DirectionSpec::Vector([1.0, 0.0, 0.0])
 }
 
 /// A sphere (`center`, `radius`) or a plane (`point`, `normal`) with penalty `stiffness` and `margin`.
@@ -351,6 +395,7 @@ pub fn load(name_or_path: &str) -> Result<(Scene, Option<PathBuf>), String> {
             std::fs::read_to_string(name_or_path).map_err(|e| format!("{name_or_path}: {e}"))?;
         let dir = Path::new(name_or_path).parent().map(Path::to_path_buf);
         let mut scene = parse_unchecked(&text, name_or_path)?;
+        scene.base.clone_from(&dir);
         scene
             .read_param_files(dir.as_deref())
             .map_err(|m| format!("{name_or_path}: {m}"))?;
@@ -445,6 +490,29 @@ impl Scene {
                 "bending.damping: must be non-negative, got {}",
                 self.bending.damping
             ));
+        }
+        if let Some(a) = &self.bending.anisotropy {
+            hinge_core::anisotropy::Anisotropy::new(a.warp, a.weft)
+                .map_err(|e| format!("bending.anisotropy: {e}"))?;
+            match &a.direction {
+                DirectionSpec::Vector(d) => {
+                    if !(d.iter().all(|c| c.is_finite()) && d.iter().any(|&c| c != 0.0)) {
+                        return Err(format!(
+                            "bending.anisotropy.direction: {d:?} is zero or not finite"
+                        ));
+                    }
+                }
+                DirectionSpec::Name(n) if n == "uv" => {
+                    if self.mesh.shape.is_some() {
+                        return Err("bending.anisotropy.direction: \"uv\" needs texture coordinates, and a generated icosphere has none".into());
+                    }
+                }
+                DirectionSpec::Name(n) => {
+                    return Err(format!(
+                        "bending.anisotropy.direction: unknown `{n}` (a vector [x, y, z] or \"uv\")"
+                    ));
+                }
+            }
         }
         if hinge_solver::newton::Globalization::from_name(&self.solver.globalization).is_none() {
             return Err(format!(
@@ -663,6 +731,47 @@ impl Scene {
         pinned.sort_unstable();
         pinned.dedup();
         Ok(pinned)
+    }
+
+    /// The texture coordinates of the rest mesh's triangles (one entry per triangle of `rest`): a mesh
+    /// file's own (read again from the file), a grid's planar ones (u along x, v along y, both from 0 to 1
+    /// across the grid).
+    ///
+    /// # Errors
+    /// A one-line message: an unreadable file, a file whose mesh is not `rest`, a mesh without texture
+    /// coordinates (naming the first triangle without them).
+    pub fn rest_uvs(&self, rest: &TriMesh) -> Result<Vec<Option<TriangleUv>>, String> {
+        if let Some(obj) = &self.mesh.obj {
+            let path = self.base.as_deref().map_or(obj.clone(), |b| b.join(obj));
+            let file = hinge_core::meshio::read_mesh(&path).map_err(|e| e.to_string())?;
+            if file.mesh.triangles() != rest.triangles() {
+                return Err(format!(
+                    "{}: the file's triangles are not the rest mesh's",
+                    path.display()
+                ));
+            }
+            if file.uvs.is_empty() {
+                return Err(format!(
+                    "bending.anisotropy.direction = \"uv\": {} has no texture coordinates",
+                    path.display()
+                ));
+            }
+            return Ok(file.uvs);
+        }
+        if self.mesh.shape.is_some() {
+            return Err(
+                "bending.anisotropy.direction = \"uv\": a generated icosphere has no texture coordinates"
+                    .into(),
+            );
+        }
+        let o = self.mesh.origin;
+        let [sx, sy] = self.mesh.size;
+        let x = rest.positions();
+        Ok(rest
+            .triangles()
+            .iter()
+            .map(|t| Some(t.map(|v| [(x[v].x - o[0]) / sx, (x[v].y - o[1]) / sy])))
+            .collect())
     }
 
     /// The rest mesh.

@@ -126,6 +126,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 
+pub mod anisotropy;
 pub mod autodiff;
 pub mod bending;
 pub mod energy;

@@ -84,6 +84,10 @@ pub struct MeshFile {
     /// For each triangle of [`MeshFile::mesh`], the file's face it comes from (0-based position among the
     /// faces, whatever the format's own numbering).
     pub face_of_triangle: Vec<usize>,
+    /// Texture coordinates of each triangle's corners (OBJ `vt` with `f v/vt`; PLY vertex `u`,`v` —
+    /// or `s`,`t`, `texture_u`,`texture_v` — or a face's `texcoord` list), `None` where the face has
+    /// none; empty when the file has none at all (OFF never has).
+    pub uvs: Vec<Option<crate::anisotropy::TriangleUv>>,
 }
 
 /// Why a mesh file could not be read or written.
@@ -145,6 +149,8 @@ pub(crate) struct Raw {
     /// 1-based lines of the vertices and faces (OBJ and OFF; empty for PLY).
     pub(crate) vertex_lines: Vec<usize>,
     pub(crate) face_lines: Vec<usize>,
+    /// Texture coordinates of each face's corners (parallel to `faces`; `None` for a face without them).
+    pub(crate) face_uvs: Vec<Option<Vec<[f64; 2]>>>,
 }
 
 /// A parse error at a (1-based) line.
@@ -192,13 +198,19 @@ pub fn read_mesh_from(
     let mut triangles = Vec::with_capacity(raw.faces.len());
     let mut face_of_triangle = Vec::with_capacity(raw.faces.len());
     let mut polygons_split = 0;
+    let mut uvs = Vec::new();
+    let any_uv = raw.face_uvs.iter().any(Option::is_some);
     for (f, poly) in raw.faces.iter().enumerate() {
         if poly.len() > 3 {
             polygons_split += 1;
         }
+        let uv = raw.face_uvs.get(f).and_then(Option::as_ref);
         for k in 1..poly.len().saturating_sub(1) {
             triangles.push([poly[0], poly[k], poly[k + 1]]);
             face_of_triangle.push(f);
+            if any_uv {
+                uvs.push(uv.map(|uv| [uv[0], uv[k], uv[k + 1]]));
+            }
         }
     }
     if triangles.is_empty() {
@@ -215,6 +227,7 @@ pub fn read_mesh_from(
             format,
             polygons_split,
             face_of_triangle,
+            uvs,
         }),
         Err(source) => {
             let numbering = Numbering {
@@ -348,7 +361,9 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
         faces: Vec::new(),
         vertex_lines: Vec::new(),
         face_lines: Vec::new(),
+        face_uvs: Vec::new(),
     };
+    let mut texcoords: Vec<[f64; 2]> = Vec::new();
     for (i, line) in reader.lines().enumerate() {
         let lineno = i + 1;
         let at = |message: String| LineError {
@@ -380,10 +395,27 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
                 raw.positions.push(Vector3::new(c[0], c[1], c[2]));
                 raw.vertex_lines.push(lineno);
             }
+            Some("vt") => {
+                let mut c = [0.0; 2];
+                for (axis, slot) in c.iter_mut().enumerate() {
+                    let w = words.next().ok_or_else(|| {
+                        at(format!(
+                            "texture coordinate has fewer than 2 components (missing {})",
+                            ["u", "v"][axis]
+                        ))
+                    })?;
+                    *slot = w.parse::<f64>().map_err(|_| {
+                        at(format!("cannot parse texture coordinate `{w}`"))
+                    })?;
+                }
+                texcoords.push(c);
+            }
             Some("f") => {
                 let mut poly = Vec::new();
+                let mut uv = Some(Vec::new());
                 for corner in words {
-                    let idx = corner.split('/').next().unwrap_or("");
+                    let mut parts = corner.split('/');
+                    let idx = parts.next().unwrap_or("");
                     let value: i64 = idx
                         .parse()
                         .map_err(|_| at(format!("cannot parse face index `{corner}`")))?;
@@ -399,6 +431,29 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
                         )));
                     }
                     poly.push(resolved as usize);
+                    // `v/vt`, `v/vt/vn`; `v` and `v//vn` have no texture coordinate.
+                    match parts.next().filter(|t| !t.is_empty()) {
+                        Some(t) => {
+                            let value: i64 = t.parse().map_err(|_| {
+                                at(format!("cannot parse texture index in `{corner}`"))
+                            })?;
+                            let n = texcoords.len() as i64;
+                            let resolved = match value {
+                                v if v > 0 => v - 1,
+                                v if v < 0 => n + v,
+                                _ => -1,
+                            };
+                            if resolved < 0 || resolved >= n {
+                                return Err(at(format!(
+                                    "texture index {value} in `{corner}` does not name a texture coordinate (1-based, or negative relative to the {n} `vt` lines so far)"
+                                )));
+                            }
+                            if let Some(uv) = uv.as_mut() {
+                                uv.push(texcoords[resolved as usize]);
+                            }
+                        }
+                        None => uv = None,
+                    }
                 }
                 if poly.len() < 3 {
                     return Err(at(format!(
@@ -408,6 +463,7 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
                 }
                 raw.faces.push(poly);
                 raw.face_lines.push(lineno);
+                raw.face_uvs.push(uv);
             }
             _ => {}
         }
@@ -470,6 +526,7 @@ fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
         faces: Vec::with_capacity(nf.min(PREALLOCATE)),
         vertex_lines: Vec::with_capacity(nv.min(PREALLOCATE)),
         face_lines: Vec::with_capacity(nf.min(PREALLOCATE)),
+        face_uvs: Vec::with_capacity(nf.min(PREALLOCATE)),
     };
     for v in 0..nv {
         let (n, l) = lines.next().ok_or_else(|| {
@@ -518,6 +575,7 @@ fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
         // What follows the corners (a colour) is ignored.
         raw.faces.push(poly);
         raw.face_lines.push(n);
+        raw.face_uvs.push(None);
     }
     Ok(raw)
 }
@@ -573,7 +631,11 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
         faces: Vec::new(),
         vertex_lines: Vec::new(),
         face_lines: Vec::new(),
+        face_uvs: Vec::new(),
     };
+    // Per-vertex texture coordinates under any of their usual names.
+    let uv_names = [("u", "v"), ("s", "t"), ("texture_u", "texture_v")];
+    let mut vertex_uvs: Vec<Option<[f64; 2]>> = Vec::with_capacity(vertices.len());
     for (i, v) in vertices.iter().enumerate() {
         let mut c = [0.0; 3];
         for (slot, axis) in c.iter_mut().zip(["x", "y", "z"]) {
@@ -583,7 +645,17 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
                 .ok_or_else(|| format!("vertex {i} (0-based) has no numeric property `{axis}`"))?;
         }
         raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+        vertex_uvs.push(uv_names.iter().find_map(|(a, b)| {
+            Some([v.get(*a).and_then(scalar)?, v.get(*b).and_then(scalar)?])
+        }));
     }
+    let float_list = |p: &Property| -> Option<Vec<f64>> {
+        Some(match p {
+            Property::ListFloat(v) => v.iter().map(|&x| f64::from(x)).collect(),
+            Property::ListDouble(v) => v.clone(),
+            _ => return None,
+        })
+    };
     if let Some(faces) = ply.payload.get("face") {
         raw.faces.reserve(faces.len());
         for (f, e) in faces.iter().enumerate() {
@@ -606,7 +678,26 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
                     format!("face {f} (0-based) names the negative vertex index {i}")
                 })?);
             }
+            // Corner texture coordinates (`texcoord`, u v per corner, as MeshLab writes them), else the
+            // vertices' own.
+            let uv = match e.get("texcoord").and_then(float_list) {
+                Some(t) if t.len() == 2 * poly.len() => {
+                    Some(t.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
+                }
+                Some(t) => {
+                    return Err(format!(
+                        "face {f} (0-based) has {} `texcoord` values for {} corners (2 per corner)",
+                        t.len(),
+                        poly.len()
+                    ));
+                }
+                None => poly
+                    .iter()
+                    .map(|&v| vertex_uvs.get(v).copied().flatten())
+                    .collect::<Option<Vec<_>>>(),
+            };
             raw.faces.push(poly);
+            raw.face_uvs.push(uv);
         }
     }
     Ok(raw)
