@@ -387,7 +387,8 @@ pub fn anisotropy_factors(scene: &Scene, rest: &TriMesh) -> Result<Option<Vec<f6
     let Some(spec) = &scene.bending.anisotropy else {
         return Ok(None);
     };
-    let law = Anisotropy::new(spec.warp, spec.weft).map_err(|e| format!("bending.anisotropy: {e}"))?;
+    let law =
+        Anisotropy::new(spec.warp, spec.weft).map_err(|e| format!("bending.anisotropy: {e}"))?;
     let err = |e: hinge_core::anisotropy::AnisotropyError| format!("bending.anisotropy: {e}");
     Ok(Some(match &spec.direction {
         crate::scene::DirectionSpec::Vector(d) => law

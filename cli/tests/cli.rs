@@ -403,7 +403,7 @@ fn scenes_are_listed_shown_and_validated() {
         );
     }
     assert!(
-        names.contains("drape       a square cloth falls onto a static sphere."),
+        names.contains("drape              a square cloth falls onto a static sphere."),
         "{names}"
     );
     assert_eq!(
@@ -418,7 +418,8 @@ fn scenes_are_listed_shown_and_validated() {
             "beam2",
             "beam3",
             "beam4",
-            "beam5"
+            "beam5",
+            "anisotropic-drape"
         ]
     );
     // `show` prints a scene file that runs as is.
@@ -1318,5 +1319,190 @@ fn mesh_formats_through_the_command_line() {
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(err.contains("stl") && err.contains("--format"), "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// A scene file: the built-in `base` with `extra` TOML appended (tables after the scene's own).
+fn scene_with(dir: &Path, name: &str, base: &str, extra: &str) -> PathBuf {
+    let shown = hinge(&["scenes", "show", base]);
+    assert!(shown.status.success());
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(
+        &file,
+        format!("{}\n{extra}\n", String::from_utf8_lossy(&shown.stdout)),
+    )
+    .unwrap();
+    file
+}
+
+/// Mean |θ| of the hinges of `frame` whose rest edge runs along x, and of those along y (a grid's diagonal
+/// hinges left out).
+fn fold_angles_along_x_and_y(rest: &hinge_core::TriMesh, frame: &Path) -> (f64, f64) {
+    let x = hinge_core::meshio::read_mesh(frame).unwrap().mesh;
+    let r = rest.positions();
+    let (mut sx, mut nx, mut sy, mut ny) = (0.0, 0, 0.0, 0);
+    for h in hinge_core::topology::hinges(rest).unwrap() {
+        let e = (r[h.vertices[2]] - r[h.vertices[1]]).normalize();
+        let s = h.vertices.map(|v| x.positions()[v]);
+        let theta = hinge_core::hinge::theta_only(&s).unwrap().abs();
+        if e.x.abs() > 0.999 {
+            sx += theta;
+            nx += 1;
+        } else if e.y.abs() > 0.999 {
+            sy += theta;
+            ny += 1;
+        }
+    }
+    (sx / nx as f64, sy / ny as f64)
+}
+
+#[test]
+fn anisotropic_bending_through_scenes() {
+    let dir = tmp("anisotropy");
+    // Strips cut along the warp and along the weft (the warp across the strip) under their own weight:
+    // beam4 (4% of its length, linear) with k_warp = 9 k_bend. Folds across a strip cut along the warp bend
+    // the warp threads: its hinges across the strip are 10 times stiffer, so it deflects about a tenth as
+    // much (more: its diagonal hinges are stiffened less); the strip cut along the weft folds along the
+    // warp, which only its diagonal hinges feel.
+    let drop = |file: &Path| {
+        run_summary(&dir, &[file.to_str().unwrap(), "--static"])["far_end_drop"]
+            .as_f64()
+            .unwrap()
+    };
+    let iso = run_summary(&dir, &["beam4", "--static"])["far_end_drop"]
+        .as_f64()
+        .unwrap();
+    let along_warp = drop(&scene_with(
+        &dir,
+        "warp",
+        "beam4",
+        "[bending.anisotropy]\nwarp = 9.0\ndirection = [1.0, 0.0, 0.0]",
+    ));
+    let along_weft = drop(&scene_with(
+        &dir,
+        "weft",
+        "beam4",
+        "[bending.anisotropy]\nwarp = 9.0\ndirection = [0.0, 1.0, 0.0]",
+    ));
+    // The grid's texture coordinates run u along x: the same as the constant direction x.
+    let along_uv = drop(&scene_with(
+        &dir,
+        "uv",
+        "beam4",
+        "[bending.anisotropy]\nwarp = 9.0\ndirection = \"uv\"",
+    ));
+    println!(
+        "beam4 tip deflection: isotropic {iso:.4e} m, strip along the warp {along_warp:.4e} m ({:.3} of it), along the weft {along_weft:.4e} m ({:.3}), warp from UVs {along_uv:.4e} m",
+        along_warp / iso,
+        along_weft / iso
+    );
+    assert!(
+        along_warp / iso > 0.1 && along_warp / iso < 0.15,
+        "{along_warp} {iso}"
+    );
+    assert!(
+        along_weft / iso > 0.9 && along_weft < iso,
+        "{along_weft} {iso}"
+    );
+    assert!(
+        (along_uv / along_warp - 1.0).abs() < 1e-9,
+        "{along_uv} {along_warp}"
+    );
+    // The anisotropic drape hangs otherwise than the drape: folds across x (hinges along y) are 20 times
+    // stiffer, so they bend less than those along x; the isotropic drape bends both alike.
+    let rest =
+        hinge_core::grid::grid(16, 16, 1.0, 1.0, hinge_core::grid::Diagonal::Alternating).unwrap();
+    let mut ratios = Vec::new();
+    for scene in ["drape", "anisotropic-drape"] {
+        let out = dir.join(scene);
+        let o = hinge(&[
+            "run",
+            scene,
+            "--resolution",
+            "16",
+            "--frames",
+            "45",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (ax, ay) = fold_angles_along_x_and_y(&rest, &out.join("frame_0045.obj"));
+        println!(
+            "{scene}: mean |θ| of hinges along x {ax:.4}, along y {ay:.4} rad (ratio y/x {:.3})",
+            ay / ax
+        );
+        ratios.push(ay / ax);
+    }
+    assert!((ratios[0] - 1.0).abs() < 0.25, "{ratios:?}");
+    assert!(ratios[1] < 0.6 * ratios[0], "{ratios:?}");
+    // Bad input: one line naming the key.
+    let bad = |name: &str, base: &str, extra: &str, needle: &str| {
+        let file = scene_with(&dir, name, base, extra);
+        let o = hinge(&[
+            "run",
+            file.to_str().unwrap(),
+            "--frames",
+            "1",
+            "--no-frames",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(!o.status.success(), "{name}");
+        assert_eq!(err.trim().lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(needle), "{name}: {err}");
+    };
+    bad(
+        "negative",
+        "beam1",
+        "[bending.anisotropy]\nwarp = -2.0",
+        "bending.anisotropy",
+    );
+    bad(
+        "unknown-direction",
+        "beam1",
+        "[bending.anisotropy]\ndirection = \"bias\"",
+        "bending.anisotropy.direction: unknown `bias`",
+    );
+    bad(
+        "normal",
+        "beam1",
+        "[bending.anisotropy]\ndirection = [0.0, 0.0, 1.0]",
+        "normal to the surface",
+    );
+    bad(
+        "sphere-uv",
+        "shell-drop",
+        "[bending.anisotropy]\ndirection = \"uv\"",
+        "icosphere",
+    );
+    // A mesh file without texture coordinates asked for UV directions.
+    let mesh = dir.join("plain.obj");
+    std::fs::write(
+        &mesh,
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+    let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
+        .replace("cells = [60, 5]", "obj = \"plain.obj\"")
+        .replace("resolutions = [[60, 5], [78, 9], [97, 13]]\n", "")
+        .replace("clamp_columns = 2", "vertices = [0]");
+    let file = dir.join("plain-uv.toml");
+    std::fs::write(
+        &file,
+        format!("{text}\n[bending.anisotropy]\ndirection = \"uv\"\n"),
+    )
+    .unwrap();
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--no-frames",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(
+        !o.status.success() && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert!(err.contains("no texture coordinates"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }

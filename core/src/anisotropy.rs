@@ -52,7 +52,9 @@ pub struct Anisotropy {
 #[non_exhaustive]
 pub enum AnisotropyError {
     /// A ratio that is not finite or would make a factor non-positive.
-    #[error("`{name}` = {value}: must be finite and greater than -1 (the factor 1 + warp·sin²φ + weft·cos²φ must stay positive)")]
+    #[error(
+        "`{name}` = {value}: must be finite and greater than -1 (the factor 1 + warp·sin²φ + weft·cos²φ must stay positive)"
+    )]
     Ratio {
         /// `warp` or `weft`.
         name: &'static str,
@@ -66,7 +68,9 @@ pub enum AnisotropyError {
         direction: [f64; 3],
     },
     /// The constant direction is normal to a hinge's surface: it has no tangent part there.
-    #[error("material direction is normal to the surface at hinge {hinge} (vertices {vertices:?}): it defines no direction in the surface there")]
+    #[error(
+        "material direction is normal to the surface at hinge {hinge} (vertices {vertices:?}): it defines no direction in the surface there"
+    )]
     NormalToSurface {
         /// Hinge index (hinge order).
         hinge: usize,
@@ -82,13 +86,17 @@ pub enum AnisotropyError {
         triangles: usize,
     },
     /// A triangle next to a hinge has no texture coordinates.
-    #[error("triangle {triangle} has no texture coordinates (the material direction is taken from UVs)")]
+    #[error(
+        "triangle {triangle} has no texture coordinates (the material direction is taken from UVs)"
+    )]
     MissingUv {
         /// Triangle index (mesh order, from 0).
         triangle: usize,
     },
     /// A triangle's texture coordinates are collinear (or not finite): its UV Jacobian is singular.
-    #[error("triangle {triangle} has degenerate texture coordinates {uv:?} (zero UV area): no direction of increasing u")]
+    #[error(
+        "triangle {triangle} has degenerate texture coordinates {uv:?} (zero UV area): no direction of increasing u"
+    )]
     DegenerateUv {
         /// Triangle index (mesh order, from 0).
         triangle: usize,
@@ -187,7 +195,10 @@ pub fn uv_directions(
         .enumerate()
         .map(|(t, (tri, uv))| {
             let Some(uv) = uv else { return Ok(None) };
-            let degenerate = || AnisotropyError::DegenerateUv { triangle: t, uv: *uv };
+            let degenerate = || AnisotropyError::DegenerateUv {
+                triangle: t,
+                uv: *uv,
+            };
             // x(u, v) = x0 + J (uv − uv0), J = [e1 e2] · [Δuv1 Δuv2]⁻¹; ∂x/∂u is J's first column.
             let duv = Matrix2::new(
                 uv[1][0] - uv[0][0],

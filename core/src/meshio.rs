@@ -404,9 +404,9 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
                             ["u", "v"][axis]
                         ))
                     })?;
-                    *slot = w.parse::<f64>().map_err(|_| {
-                        at(format!("cannot parse texture coordinate `{w}`"))
-                    })?;
+                    *slot = w
+                        .parse::<f64>()
+                        .map_err(|_| at(format!("cannot parse texture coordinate `{w}`")))?;
                 }
                 texcoords.push(c);
             }
@@ -645,9 +645,11 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
                 .ok_or_else(|| format!("vertex {i} (0-based) has no numeric property `{axis}`"))?;
         }
         raw.positions.push(Vector3::new(c[0], c[1], c[2]));
-        vertex_uvs.push(uv_names.iter().find_map(|(a, b)| {
-            Some([v.get(*a).and_then(scalar)?, v.get(*b).and_then(scalar)?])
-        }));
+        vertex_uvs.push(
+            uv_names.iter().find_map(|(a, b)| {
+                Some([v.get(*a).and_then(scalar)?, v.get(*b).and_then(scalar)?])
+            }),
+        );
     }
     let float_list = |p: &Property| -> Option<Vec<f64>> {
         Some(match p {

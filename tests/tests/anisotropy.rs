@@ -5,8 +5,7 @@
 
 use hinge_core::TriMesh;
 use hinge_core::anisotropy::{
-    Anisotropic, Anisotropy, AnisotropyError, MaterialDirection, TriangleUv,
-    hinge_material_angles,
+    Anisotropic, Anisotropy, AnisotropyError, MaterialDirection, TriangleUv, hinge_material_angles,
 };
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::grid::{Diagonal, grid};
@@ -177,10 +176,14 @@ fn anisotropic_energies_match_finite_differences_and_num_dual() {
     assert!(f.iter().any(|&s| s > 2.0) && f.iter().any(|&s| s < 2.0));
     fn check<P: HingePsi>(name: &str, rest: &TriMesh, x: &[Vector3<f64>], psi: P) {
         let m = BendingModel::new(rest, psi).unwrap();
-        let r = m.evaluate(x, Request::ALL, Method::Refactored, SEQ).unwrap();
+        let r = m
+            .evaluate(x, Request::ALL, Method::Refactored, SEQ)
+            .unwrap();
         let a = m.evaluate(x, Request::ALL, Method::Autodiff, SEQ).unwrap();
         let (fd_g, fd_h) = fd_energy_derivatives(x, 1e-6, |y| {
-            let e = m.evaluate(y, Request::GRADIENT, Method::Refactored, SEQ).unwrap();
+            let e = m
+                .evaluate(y, Request::GRADIENT, Method::Refactored, SEQ)
+                .unwrap();
             (e.energy, e.gradient)
         });
         let dense = sym_dense(m.pattern(), &r.hessian);
@@ -209,10 +212,18 @@ fn anisotropic_energies_match_finite_differences_and_num_dual() {
     );
     let runtime = RuntimePsi::new(
         "k * a * (1.0 - cos(theta - theta_bar)) + c * pow(sinh(theta), 2)",
-        [("k", ParamValue::Scalar(0.9)), ("c", ParamValue::Scalar(0.05))],
+        [
+            ("k", ParamValue::Scalar(0.9)),
+            ("c", ParamValue::Scalar(0.05)),
+        ],
     )
     .unwrap();
-    check("run-time ψ", &rest, &x, Anisotropic::new(runtime, f.clone()));
+    check(
+        "run-time ψ",
+        &rest,
+        &x,
+        Anisotropic::new(runtime, f.clone()),
+    );
 }
 
 /// Planar texture coordinates of a flat mesh: u along `axis` (a unit vector in the xy plane), v across.
@@ -295,7 +306,8 @@ fn uv_directions_equal_the_constant_direction_on_flat_sheets() {
         .unwrap();
     assert!(rel_error(&from_file, &constant) < 1e-12);
     // A quad with texture coordinates, fan-triangulated: the corners follow the fan.
-    let quad = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
+    let quad =
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
     let file = read_mesh_from(quad.as_bytes(), MeshFormat::Obj, "quad.obj").unwrap();
     assert_eq!(
         file.uvs,
@@ -332,7 +344,10 @@ fn bad_anisotropy_input_is_a_typed_error_naming_the_key_hinge_or_triangle() {
     let e = law
         .hinge_factors(&sheet, &MaterialDirection::Constant(Vector3::z()))
         .unwrap_err();
-    assert!(matches!(e, AnisotropyError::NormalToSurface { hinge: 0, .. }), "{e}");
+    assert!(
+        matches!(e, AnisotropyError::NormalToSurface { hinge: 0, .. }),
+        "{e}"
+    );
     // UVs: wrong count, missing on a triangle next to a hinge, degenerate (collinear) on one.
     let mut uvs = planar_uvs(&sheet, Vector3::x());
     assert!(matches!(
@@ -368,5 +383,8 @@ fn bad_anisotropy_input_is_a_typed_error_naming_the_key_hinge_or_triangle() {
     // A texture index beyond the `vt` lines names the line.
     let bad = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n";
     let e = read_mesh_from(bad.as_bytes(), MeshFormat::Obj, "bad.obj").unwrap_err();
-    assert!(e.to_string().contains("line 5") && e.to_string().contains("texture index 2"), "{e}");
+    assert!(
+        e.to_string().contains("line 5") && e.to_string().contains("texture index 2"),
+        "{e}"
+    );
 }
