@@ -31,6 +31,7 @@ use hinge_solver::linear::{
 };
 
 use crate::scene::Scene;
+use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
     FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, SubstepPolicy,
 };
@@ -493,8 +494,17 @@ pub fn simulate_until(
         params,
         obstacles,
     } = build(scene, rest, true)?;
-    let mut stepper = ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
-        .map_err(|e| e.to_string())?;
+    let mut stepper = if scene.solver.integrator == "symplectic-euler" {
+        Stepper::Explicit(
+            SymplecticEuler::new(&system, scene.dt, scene.solver.substeps, masses, &pins)
+                .map_err(|e| e.to_string())?,
+        )
+    } else {
+        Stepper::Implicit(Box::new(
+            ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
+                .map_err(|e| e.to_string())?,
+        ))
+    };
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let mut summary = RunSummary {
         frames: scene.frames,
@@ -535,15 +545,23 @@ pub fn simulate_until(
     };
     for frame in 0..scene.frames {
         let t = Instant::now();
-        let fs = stepper
-            .advance(&mut system, &mut x, &mut v, policy)
-            .map_err(|e| {
+        let fs = match &mut stepper {
+            Stepper::Implicit(s) => s.advance(&mut system, &mut x, &mut v, policy).map_err(
+                |e| {
+                    format!(
+                        "frame {}: {e} (also in substeps down to dt/{}; {frame} frames completed)",
+                        frame + 1,
+                        1u64 << policy.max_halvings.min(30)
+                    )
+                },
+            )?,
+            Stepper::Explicit(s) => s.advance(&mut system, &mut x, &mut v).map_err(|e| {
                 format!(
-                    "frame {}: {e} (also in substeps down to dt/{}; {frame} frames completed)",
-                    frame + 1,
-                    1u64 << policy.max_halvings.min(30)
+                    "frame {}: {e} ({frame} frames completed; written up to frame_{frame:04})",
+                    frame + 1
                 )
-            })?;
+            })?,
+        };
         let stats = &fs.newton;
         summary.newton_iterations += stats.iterations;
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
@@ -584,6 +602,12 @@ pub fn simulate_until(
     summary.max_speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
+}
+
+/// The time integrator of a run.
+enum Stepper {
+    Implicit(Box<ImplicitEuler>),
+    Explicit(SymplecticEuler),
 }
 
 /// How `hinge run` ended.

@@ -312,6 +312,22 @@ pub struct SolverSpec {
     /// unset: off).
     #[serde(default)]
     pub relative_step_tolerance: Option<f64>,
+    /// `implicit-euler` (default: Newton on the incremental potential) or `symplectic-euler` (explicit,
+    /// `substeps` per frame; stable only below `2/ω_max`, see `hinge_solver::explicit` and `hinge
+    /// stability`). The Newton keys apply to implicit Euler and to `--static`.
+    #[serde(default = "default_integrator")]
+    pub integrator: String,
+    /// Explicit substeps per frame (`symplectic-euler` only; default 1).
+    #[serde(default = "default_substeps")]
+    pub substeps: usize,
+}
+
+fn default_integrator() -> String {
+    "implicit-euler".into()
+}
+
+fn default_substeps() -> usize {
+    1
 }
 
 fn default_globalization() -> String {
@@ -342,6 +358,8 @@ impl Default for SolverSpec {
             globalization: default_globalization(),
             relative_gradient_tolerance: None,
             relative_step_tolerance: None,
+            integrator: default_integrator(),
+            substeps: default_substeps(),
         }
     }
 }
@@ -489,6 +507,18 @@ impl Scene {
             return Err(format!(
                 "bending.damping: must be non-negative, got {}",
                 self.bending.damping
+            ));
+        }
+        if !["implicit-euler", "symplectic-euler"].contains(&self.solver.integrator.as_str()) {
+            return Err(format!(
+                "solver.integrator: unknown `{}` (implicit-euler, symplectic-euler)",
+                self.solver.integrator
+            ));
+        }
+        if !(1..=10_000_000).contains(&self.solver.substeps) {
+            return Err(format!(
+                "solver.substeps: must be from 1 to 10 000 000, got {}",
+                self.solver.substeps
             ));
         }
         if let Some(a) = &self.bending.anisotropy {

@@ -336,6 +336,98 @@ fn large_steps(quick: bool) -> Result<Vec<Value>, String> {
     Ok(out)
 }
 
+/// Whether symplectic Euler with step `h` runs `duration` seconds of `scene` (without damping: explicit
+/// damping has a stability limit of its own) from rest without blowing up.
+fn explicit_stable(
+    scene: &crate::scene::Scene,
+    rest: &TriMesh,
+    h: f64,
+    duration: f64,
+) -> Result<bool, String> {
+    let b = crate::run::build(scene, rest, false)?;
+    let mut system = b.system;
+    let mut stepper =
+        hinge_solver::explicit::SymplecticEuler::new(&system, h, 1, b.masses, &b.pins)
+            .map_err(err)?;
+    let (mut x, mut v) = (
+        rest.positions().to_vec(),
+        vec![Vector3::zeros(); rest.n_vertices()],
+    );
+    for _ in 0..(duration / h).ceil() as usize {
+        match stepper.advance(&mut system, &mut x, &mut v) {
+            Ok(_) => {}
+            Err(hinge_solver::newton::SolverError::Unstable { .. }) => return Ok(false),
+            Err(e) => return Err(e.to_string()),
+        }
+    }
+    Ok(x.iter().all(|p| p.iter().all(|c| c.is_finite())))
+}
+
+/// The largest stable explicit step against the implicit step that works (lecture P12–P14): the limit
+/// `2/ω_max` predicted from the rest Hessian, the largest step symplectic Euler survives for `duration`
+/// (bisection in log scale between an eighth of and four times the prediction: penalty contact, absent from
+/// the rest Hessian, lowers the limit once the cloth lands), and three implicit-Euler steps of the scene's
+/// own dt. It passes when the explicit run survives the small end and blows up (detected, never NaN) at
+/// the large one, and the implicit step works and is more than ten times the explicit limit.
+fn explicit_limits(quick: bool) -> Result<Vec<Value>, String> {
+    let mut out = Vec::new();
+    let cases: &[(&str, Option<usize>, f64)] = if quick {
+        &[("beam1", None, 0.02), ("drape", Some(12), 0.3)]
+    } else {
+        &[("beam1", None, 0.05), ("drape", None, 0.4)]
+    };
+    for &(name, resolution, duration) in cases {
+        let (mut scene, _) = crate::scene::load(name)?;
+        if let Some(r) = resolution {
+            scene.set_resolution(r)?;
+        }
+        let rest = scene.rest_mesh(None)?;
+        let b = crate::run::build(&scene, &rest, false)?;
+        let mut system = b.system;
+        let predicted = hinge_solver::explicit::critical_step(
+            &mut system,
+            rest.positions(),
+            &b.masses,
+            &b.pins,
+            300,
+        )
+        .map_err(err)?;
+        let (mut lo, mut hi) = (0.125 * predicted, 4.0 * predicted);
+        let stable_at_eighth = explicit_stable(&scene, &rest, lo, duration)?;
+        let unstable_at_4 = !explicit_stable(&scene, &rest, hi, duration)?;
+        for _ in 0..if quick { 6 } else { 10 } {
+            let mid = (lo * hi).sqrt();
+            if explicit_stable(&scene, &rest, mid, duration)? {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        // The implicit step of the scene's own dt (undamped too).
+        let b = crate::run::build(&scene, &rest, false)?;
+        let mut system = b.system;
+        let mut implicit =
+            ImplicitEuler::new(&system, scene.dt, b.masses, b.pins, b.solver, b.params)
+                .map_err(err)?;
+        let (mut x, mut v) = (
+            rest.positions().to_vec(),
+            vec![Vector3::zeros(); rest.n_vertices()],
+        );
+        let implicit_ok = (0..3).all(|_| implicit.step(&mut system, &mut x, &mut v).is_ok());
+        out.push(json!({
+            "name": format!("explicit limit: {name} ({} vertices, no damping)", rest.n_vertices()),
+            "pass": stable_at_eighth && unstable_at_4 && implicit_ok && scene.dt > 10.0 * lo,
+            "predicted_explicit_step": predicted,
+            "largest_stable_explicit_step": lo,
+            "duration": duration,
+            "implicit_step": scene.dt,
+            "implicit_step_works": implicit_ok,
+            "implicit_over_explicit": scene.dt / lo,
+        }));
+    }
+    Ok(out)
+}
+
 /// All cases.
 pub fn cases(quick: bool) -> Result<Vec<Value>, String> {
     let k = stiffness_from_material(2e5, 5e-4, 0.3);
@@ -354,6 +446,7 @@ pub fn cases(quick: bool) -> Result<Vec<Value>, String> {
     cases.push(degenerate(quick));
     cases.push(scales(quick)?);
     cases.extend(large_steps(quick)?);
+    cases.extend(explicit_limits(quick)?);
     Ok(cases)
 }
 
@@ -472,6 +565,21 @@ fn figures(case: &Value) -> String {
             case["failure"]
                 .as_str()
                 .map_or(String::new(), |e| format!("; failed: {e}"))
+        );
+    }
+    if case.get("largest_stable_explicit_step").is_some() {
+        return format!(
+            "explicit step stable up to {} s over {} s (predicted 2/ω_max = {} s); the implicit step {} s {} ({}× larger)",
+            sig(f("largest_stable_explicit_step")),
+            sig(f("duration")),
+            sig(f("predicted_explicit_step")),
+            sig(f("implicit_step")),
+            if case["implicit_step_works"].as_bool() == Some(true) {
+                "works"
+            } else {
+                "FAILS"
+            },
+            sig(f("implicit_over_explicit"))
         );
     }
     // Any other case: its fields, compact.

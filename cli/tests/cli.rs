@@ -1506,3 +1506,77 @@ fn anisotropic_bending_through_scenes() {
     assert!(err.contains("no texture coordinates"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn explicit_integrator_runs_below_its_limit_and_stops_on_one_line_above_it() {
+    let dir = tmp("explicit");
+    // beam1 without damping (explicit damping has a limit of its own): stable at h = 1e-5 s, below the
+    // 1.66e-5 s `hinge stability` measures; h = 1e-4 s blows up.
+    let scene = |name: &str, substeps: usize| {
+        let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
+            .replace("drag = 5.0", "drag = 0.0")
+            .replace("damping = 9.53907e-07", "damping = 0.0")
+            .replace(
+                "[solver]",
+                &format!("[solver]\nintegrator = \"symplectic-euler\"\nsubsteps = {substeps}"),
+            );
+        let file = dir.join(format!("{name}.toml"));
+        std::fs::write(&file, text).unwrap();
+        file
+    };
+    let stable = scene("stable", 1000);
+    let s = run_summary(&dir, &[stable.to_str().unwrap(), "--frames", "3"]);
+    assert_eq!(s["substeps"], 3000);
+    assert_eq!(s["newton_iterations"], 0);
+    assert!(s["far_end_drop"].as_f64().unwrap() > 0.0);
+    let unstable = scene("unstable", 100);
+    let out = dir.join("frames");
+    let o = hinge(&[
+        "run",
+        unstable.to_str().unwrap(),
+        "--frames",
+        "5",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(!o.status.success());
+    let last = err.trim().lines().last().unwrap();
+    println!("{last}");
+    assert!(
+        last.contains("unstable") && last.contains("frame 1"),
+        "{err}"
+    );
+    // The frames written (the rest state) hold no NaN.
+    for entry in std::fs::read_dir(&out).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "obj") && path.to_string_lossy().contains("frame_")
+        {
+            let m = hinge_core::meshio::read_mesh(&path).unwrap().mesh;
+            assert!(
+                m.positions()
+                    .iter()
+                    .all(|p| p.iter().all(|c| c.is_finite()))
+            );
+        }
+    }
+    assert!(out.join("frame_0000.obj").exists());
+    // Unknown integrator, zero substeps: one line naming the key.
+    for (extra, needle) in [
+        (
+            "integrator = \"verlet\"",
+            "solver.integrator: unknown `verlet`",
+        ),
+        ("substeps = 0", "solver.substeps"),
+    ] {
+        let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
+            .replace("[solver]", &format!("[solver]\n{extra}"));
+        let file = dir.join("bad.toml");
+        std::fs::write(&file, text).unwrap();
+        let o = hinge(&["run", file.to_str().unwrap(), "--no-frames"]);
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(!o.status.success() && e.trim().lines().count() == 1, "{e}");
+        assert!(e.contains(needle), "{e}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

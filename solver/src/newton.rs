@@ -262,6 +262,12 @@ pub enum SolverError {
     /// Inputs that do not fit (sizes, non-finite time step).
     #[error("{0}")]
     Input(String),
+    /// An explicit step blew up (see [`crate::explicit`]).
+    #[error("unstable: {message}")]
+    Unstable {
+        /// Where and why.
+        message: String,
+    },
 }
 
 impl NewtonStats {
@@ -289,7 +295,7 @@ impl SolverError {
             | SolverError::Linear { stats, .. }
             | SolverError::LineSearch { stats }
             | SolverError::NotConverged { stats } => (**stats).clone(),
-            SolverError::Input(_) => NewtonStats::default(),
+            SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
         }
     }
 }

@@ -910,3 +910,118 @@ fn refactoring_with_new_values_forgets_the_old_ones() {
     let mut x = b.clone();
     assert!(matches!(llt.solve(&mut x), Err(LinearError::Usage(_))));
 }
+
+/// A cloth hanging from its y = 0 edge: mass-spring membrane, bending and gravity.
+fn hanging_cloth(cells: usize) -> (TriMesh, System, Vec<f64>, Pins) {
+    let rest = cloth(cells);
+    let n = rest.n_vertices();
+    let masses = lumped_masses(&rest, 0.2);
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(MassSpring::new(&rest, 300.0).unwrap()),
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 0.01 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(Gravity::new(masses.clone(), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    let sys = System::new(n, terms).unwrap();
+    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].y == 0.0).collect();
+    let pins = Pins::new(n, pinned).unwrap();
+    (rest, sys, masses, pins)
+}
+
+#[test]
+fn symplectic_euler_matches_implicit_euler_on_small_steps_and_reports_a_blow_up() {
+    use hinge_solver::explicit::{SymplecticEuler, critical_step};
+    let (rest, mut sys, masses, pins) = hanging_cloth(6);
+    let n = rest.n_vertices();
+    let limit = critical_step(&mut sys, rest.positions(), &masses, &pins, 500).unwrap();
+    println!("predicted explicit limit 2/ω_max = {limit:.4e} s");
+    assert!(limit.is_finite() && limit > 0.0);
+    // Far below the limit both first-order methods follow the same trajectory: after N steps their
+    // displacements differ by O(1/N) relative.
+    let h = 0.05 * limit;
+    let steps = 400;
+    let mut explicit = SymplecticEuler::new(&sys, h, 1, masses.clone(), &pins).unwrap();
+    let (mut xe, mut ve) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
+    for _ in 0..steps {
+        explicit.advance(&mut sys, &mut xe, &mut ve).unwrap();
+    }
+    let (_, mut sys_i, _, _) = hanging_cloth(6);
+    let params = NewtonParams {
+        gradient_tolerance: 1e-12,
+        ..NewtonParams::default()
+    };
+    let mut implicit = ImplicitEuler::new(
+        &sys_i,
+        h,
+        masses.clone(),
+        pins.clone(),
+        default_solver(),
+        params,
+    )
+    .unwrap();
+    let (mut xi, mut vi) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
+    for _ in 0..steps {
+        implicit.step(&mut sys_i, &mut xi, &mut vi).unwrap();
+    }
+    let disp = |x: &[Vector3<f64>]| -> Vec<f64> {
+        x.iter()
+            .zip(rest.positions())
+            .flat_map(|(p, r)| (p - r).iter().copied().collect::<Vec<_>>())
+            .collect()
+    };
+    let diff = rel_error(&disp(&xe), &disp(&xi));
+    println!(
+        "after {steps} steps of {h:.3e} s: explicit vs implicit displacement {diff:.2e} (1/N = {:.2e})",
+        1.0 / steps as f64
+    );
+    assert!(diff < 5.0 / steps as f64, "{diff}");
+    // Pins stay put under the explicit steps too.
+    assert!(
+        pins.vertices()
+            .iter()
+            .all(|&v| xe[v] == rest.positions()[v])
+    );
+    // Above the limit the run blows up: detected and reported, the frame's start state kept, no NaN.
+    for (factor, stable) in [(0.8, true), (1.05, false), (1.5, false)] {
+        let (_, mut sys, _, _) = hanging_cloth(6);
+        let h = factor * limit;
+        // Frames of ten substeps of h.
+        let mut stepper = SymplecticEuler::new(&sys, 10.0 * h, 10, masses.clone(), &pins).unwrap();
+        assert_eq!(stepper.step_size(), h);
+        let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
+        let mut outcome = Ok(());
+        for _ in 0..200 {
+            let (x0, v0) = (x.clone(), v.clone());
+            if let Err(e) = stepper.advance(&mut sys, &mut x, &mut v) {
+                assert!(x == x0 && v == v0, "state kept");
+                outcome = Err(e);
+                break;
+            }
+        }
+        assert!(x.iter().all(|p| p.iter().all(|c| c.is_finite())));
+        let speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
+        println!("h = {factor} × limit: {outcome:?}, largest speed {speed:.3e} m/s");
+        match outcome {
+            Ok(()) => assert!(stable, "h = {factor} × limit should blow up"),
+            Err(SolverError::Unstable { message }) => {
+                assert!(!stable, "h = {factor} × limit: {message}");
+                assert!(message.contains("above the stability limit"), "{message}");
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+    // Bad input: typed errors.
+    assert!(matches!(
+        SymplecticEuler::new(&sys, 0.01, 0, masses.clone(), &pins),
+        Err(SolverError::Input(_))
+    ));
+    let mut zero = masses.clone();
+    zero[n - 1] = 0.0;
+    assert!(matches!(
+        SymplecticEuler::new(&sys, 0.01, 1, zero, &pins),
+        Err(SolverError::Input(_))
+    ));
+}

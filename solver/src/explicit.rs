@@ -1,0 +1,303 @@
+//! Symplectic (semi-implicit) Euler: the explicit baseline whose step-size limit motivates implicit Euler
+//! (lecture P12–P14).
+//!
+//! Each substep of size `h`: `v ← v − h M⁻¹ ∇E(x)`, then `x ← x + h v` (pinned vertices keep their
+//! positions and zero velocity). It is stable only for `h < 2/ω_max`, with `ω_max²` the largest eigenvalue of
+//! `M⁻¹ Hess E` ([`critical_step`] estimates it): stiff membranes make that limit tiny, which is why cloth
+//! and shell simulators step implicitly.
+//!
+//! **Detecting a blow-up.** Without energy input (fixed pins, conservative or dissipative energies) the
+//! kinetic energy of a run can only come from the initial kinetic energy and the work of the forces. A
+//! substep is reported as unstable ([`SolverError::Unstable`]) when a position or velocity is not finite,
+//! when the energies cannot be evaluated (a triangle collapsed), or when the kinetic energy exceeds twice
+//! the initial kinetic energy plus the work the initial forces could do across the scene,
+//! `2 (½ Σᵢ mᵢ |vᵢ⁰|² + Σᵢ |fᵢ⁰| L)` (L the diagonal of the start's bounding box): an unstable mode grows
+//! geometrically and passes it within a few periods, a stable run does not reach it. (The kinetic energy,
+//! not the total: the damping terms' step potentials are not energies.) On error `x` and `v` are those of
+//! the frame's start; no NaN is ever returned.
+
+use hinge_core::bending::Request;
+use hinge_core::energy::{System, SystemEvaluation};
+use hinge_core::nalgebra::Vector3;
+use hinge_energies::pins::Pins;
+
+use crate::newton::{FrameStats, Objective, Reduced, SolverError};
+
+/// Symplectic Euler with a fixed number of substeps per frame.
+pub struct SymplecticEuler {
+    /// The frame's time step.
+    pub dt: f64,
+    /// Substeps per frame (the explicit step is `dt / substeps`).
+    pub substeps: usize,
+    masses: Vec<f64>,
+    pinned: Vec<bool>,
+    out: SystemEvaluation,
+    /// Positions of the previous substep (the damping terms' step state).
+    prev: Vec<Vector3<f64>>,
+    /// The kinetic-energy bound of the blow-up test (see the module documentation), set at the first
+    /// substep.
+    bound: Option<f64>,
+    substeps_done: usize,
+}
+
+impl std::fmt::Debug for SymplecticEuler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SymplecticEuler")
+            .field("dt", &self.dt)
+            .field("substeps", &self.substeps)
+            .finish()
+    }
+}
+
+impl SymplecticEuler {
+    /// A stepper for `system` with frame step `dt` split into `substeps`, masses `masses`, pins `pins`.
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] for a non-positive `dt`, zero substeps, non-positive masses or masses of the
+    /// wrong length.
+    pub fn new(
+        system: &System,
+        dt: f64,
+        substeps: usize,
+        masses: Vec<f64>,
+        pins: &Pins,
+    ) -> Result<Self, SolverError> {
+        let n = system.n_vertices();
+        if !(dt > 0.0 && dt.is_finite()) || substeps == 0 || masses.len() != n {
+            return Err(SolverError::Input(format!(
+                "dt = {dt} must be positive and substeps = {substeps} at least 1; {} masses for {n} vertices",
+                masses.len()
+            )));
+        }
+        let pinned: Vec<bool> = {
+            let mut p = vec![false; n];
+            for &v in pins.vertices() {
+                if let Some(slot) = p.get_mut(v) {
+                    *slot = true;
+                }
+            }
+            p
+        };
+        if let Some(i) = (0..n).find(|&i| !(pinned[i] || masses[i] > 0.0 && masses[i].is_finite()))
+        {
+            return Err(SolverError::Input(format!(
+                "vertex {i} is free but its mass {} is not positive: explicit steps divide by it",
+                masses[i]
+            )));
+        }
+        Ok(Self {
+            dt,
+            substeps,
+            masses,
+            pinned,
+            out: SystemEvaluation {
+                energy: 0.0,
+                terms: Vec::new(),
+                gradient: Vec::new(),
+                hessian: Vec::new(),
+            },
+            prev: Vec::new(),
+            bound: None,
+            substeps_done: 0,
+        })
+    }
+
+    /// The explicit step `dt / substeps`.
+    pub fn step_size(&self) -> f64 {
+        self.dt / self.substeps as f64
+    }
+
+    /// Advances one frame ([`SymplecticEuler::substeps`] substeps).
+    ///
+    /// # Errors
+    /// [`SolverError::Unstable`] when a substep blows up (see the module documentation), with `x` and `v`
+    /// set back to the frame's start; [`SolverError::Input`] for sizes that do not fit.
+    pub fn advance(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+    ) -> Result<FrameStats, SolverError> {
+        let n = self.masses.len();
+        if x.len() != n || v.len() != n {
+            return Err(SolverError::Input(format!(
+                "{} positions and {} velocities for {n} vertices",
+                x.len(),
+                v.len()
+            )));
+        }
+        let (x0, v0) = (x.to_vec(), v.to_vec());
+        let h = self.step_size();
+        for _ in 0..self.substeps {
+            if let Err(e) = self.substep(system, x, v, h) {
+                x.copy_from_slice(&x0);
+                v.copy_from_slice(&v0);
+                return Err(e);
+            }
+        }
+        Ok(FrameStats {
+            substeps: self.substeps,
+            smallest_fraction: 1.0 / self.substeps as f64,
+            ..FrameStats::default()
+        })
+    }
+
+    fn substep(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+        h: f64,
+    ) -> Result<(), SolverError> {
+        let k = self.substeps_done;
+        let unstable = |reason: String| SolverError::Unstable {
+            message: format!(
+                "explicit substep {} (h = {h:.3e} s): {reason}; h is above the stability limit (see `critical_step`): use more substeps or implicit Euler",
+                k + 1
+            ),
+        };
+        if self.prev.len() != x.len() {
+            self.prev = x.to_vec();
+        }
+        system
+            .begin_step(&self.prev, h)
+            .and_then(|()| Objective::evaluate(system, x, Request::GRADIENT, &mut self.out))
+            .map_err(|e| unstable(format!("the energies cannot be evaluated ({e})")))?;
+        let kinetic = |v: &[Vector3<f64>], m: &[f64]| -> f64 {
+            v.iter()
+                .zip(m)
+                .map(|(w, m)| 0.5 * m * w.norm_squared())
+                .sum()
+        };
+        let bound = *self.bound.get_or_insert_with(|| {
+            let (lo, hi) = x.iter().fold(
+                (
+                    Vector3::repeat(f64::INFINITY),
+                    Vector3::repeat(f64::NEG_INFINITY),
+                ),
+                |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+            );
+            let size = (hi - lo).norm();
+            let work: f64 = (0..x.len())
+                .filter(|&i| !self.pinned[i])
+                .map(|i| {
+                    let g = Vector3::new(
+                        self.out.gradient[3 * i],
+                        self.out.gradient[3 * i + 1],
+                        self.out.gradient[3 * i + 2],
+                    );
+                    g.norm() * size
+                })
+                .sum();
+            2.0 * (work + kinetic(v, &self.masses)) + f64::MIN_POSITIVE
+        });
+        self.prev.copy_from_slice(x);
+        for i in 0..x.len() {
+            if self.pinned[i] {
+                v[i] = Vector3::zeros();
+                continue;
+            }
+            let g = Vector3::new(
+                self.out.gradient[3 * i],
+                self.out.gradient[3 * i + 1],
+                self.out.gradient[3 * i + 2],
+            );
+            v[i] -= g * (h / self.masses[i]);
+            x[i] += v[i] * h;
+            if !(x[i].iter().all(|c| c.is_finite()) && v[i].iter().all(|c| c.is_finite())) {
+                return Err(unstable(format!("vertex {i} left the finite numbers")));
+            }
+        }
+        let ke = kinetic(v, &self.masses);
+        if ke > bound {
+            return Err(unstable(format!(
+                "the kinetic energy reached {ke:.3e} J, more than the {bound:.3e} J the start's energy and forces could supply"
+            )));
+        }
+        self.substeps_done += 1;
+        Ok(())
+    }
+}
+
+/// The largest stable explicit step `2/ω_max` at `x`, with `ω_max²` the largest eigenvalue of
+/// `M⁻¹ Hess E(x)` over the free vertices (at a state where that Hessian is positive semi-definite, such as
+/// the rest state: the power iteration finds the eigenvalue largest in magnitude), by power iteration on `M^{-1/2} H M^{-1/2}` (`iterations`
+/// steps from a fixed start vector; the Rayleigh quotient approaches ω_max² from below, so the step is an
+/// upper estimate).
+///
+/// # Errors
+/// [`SolverError::Eval`] if the Hessian cannot be evaluated; [`SolverError::Input`] for masses that do not
+/// fit or no free vertex.
+pub fn critical_step(
+    system: &mut System,
+    x: &[Vector3<f64>],
+    masses: &[f64],
+    pins: &Pins,
+    iterations: usize,
+) -> Result<f64, SolverError> {
+    let n = system.n_vertices();
+    if masses.len() != n || x.len() != n {
+        return Err(SolverError::Input(format!(
+            "{} masses and {} positions for {n} vertices",
+            masses.len(),
+            x.len()
+        )));
+    }
+    let mut out = SystemEvaluation {
+        energy: 0.0,
+        terms: Vec::new(),
+        gradient: Vec::new(),
+        hessian: Vec::new(),
+    };
+    Objective::evaluate(system, x, Request::ALL, &mut out).map_err(|source| SolverError::Eval {
+        source,
+        stats: Box::default(),
+    })?;
+    let mut free = pins.free_dofs();
+    free.resize(3 * n, true);
+    let reduced = Reduced::new(system.pattern(), &free);
+    let m = reduced.csc.n;
+    if m == 0 {
+        return Err(SolverError::Input("no free vertex".into()));
+    }
+    let scale: Vec<f64> = reduced
+        .dofs
+        .iter()
+        .map(|&d| 1.0 / masses[d / 3].sqrt())
+        .collect();
+    if scale.iter().any(|s| !s.is_finite()) {
+        return Err(SolverError::Input(
+            "a free vertex has no positive mass".into(),
+        ));
+    }
+    let values: Vec<f64> = reduced.source.iter().map(|&k| out.hessian[k]).collect();
+    // A fixed, generic start vector (deterministic).
+    let mut y: Vec<f64> = (0..m)
+        .map(|i| 1.0 + 0.5 * ((i as f64) * 0.618_033_988_749_895).fract())
+        .collect();
+    let (mut t, mut hy) = (vec![0.0; m], vec![0.0; m]);
+    let mut lambda = 0.0_f64;
+    for _ in 0..iterations.max(1) {
+        let norm = y.iter().map(|a| a * a).sum::<f64>().sqrt();
+        if !(norm > 0.0 && norm.is_finite()) {
+            break;
+        }
+        for a in &mut y {
+            *a /= norm;
+        }
+        for i in 0..m {
+            t[i] = y[i] * scale[i];
+        }
+        reduced.csc.mul(&values, &t, &mut hy);
+        for i in 0..m {
+            hy[i] *= scale[i];
+        }
+        lambda = y.iter().zip(&hy).map(|(a, b)| a * b).sum::<f64>();
+        y.copy_from_slice(&hy);
+    }
+    Ok(if lambda > 0.0 {
+        2.0 / lambda.sqrt()
+    } else {
+        f64::INFINITY
+    })
+}
