@@ -5,7 +5,7 @@
 //! default job.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -13,6 +13,7 @@ use clap::Args;
 use hinge_core::TriMesh;
 use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method};
+use hinge_core::energy::Plasticity;
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::meshio::{MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
@@ -133,6 +134,8 @@ pub struct RunSummary {
     pub smallest_substep_fraction: f64,
     /// The run was stopped (Ctrl-C) before its last frame; `frames` counts the frames completed.
     pub interrupted: bool,
+    /// The largest accumulated plastic angle (rad) of a run with `[bending.plasticity]`.
+    pub max_plastic_angle: Option<f64>,
 }
 
 impl RunSummary {
@@ -178,16 +181,30 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     };
     let kd = if damped { scene.bending.damping } else { 0.0 };
     let factors = anisotropy_factors(scene, rest)?;
-    let f = factors.as_deref();
+    let rest_angles = match &scene.bending.rest_angles {
+        Some(path) => Some(read_rest_angles(
+            &scene.base.as_deref().map_or(path.clone(), |b| b.join(path)),
+        )?),
+        None => None,
+    };
+    let f = HingeOptions {
+        damping: kd,
+        anisotropy: factors.as_deref(),
+        rest_angles: rest_angles.as_deref(),
+        plasticity: scene.bending.plasticity.as_ref().map(|p| Plasticity {
+            yield_angle: p.yield_angle,
+            hardening: p.hardening,
+        }),
+    };
     let bending = match scene.bending.energy.as_str() {
-        "discrete-shells" => bending_term(rest, DiscreteShells { k }, kd, f)?,
-        "willmore" => bending_term(rest, Willmore { k }, kd, f)?,
-        "bridson" => bending_term(rest, Bridson { k }, kd, f)?,
+        "discrete-shells" => bending_term(rest, DiscreteShells { k }, f)?,
+        "willmore" => bending_term(rest, Willmore { k }, f)?,
+        "bridson" => bending_term(rest, Bridson { k }, f)?,
         "custom" => match scene.custom_psi(k)? {
-            crate::scene::CustomPsi::Small(p) => bending_term(rest, p, kd, f)?,
-            crate::scene::CustomPsi::Large(p) => bending_term(rest, p, kd, f)?,
+            crate::scene::CustomPsi::Small(p) => bending_term(rest, p, f)?,
+            crate::scene::CustomPsi::Large(p) => bending_term(rest, p, f)?,
         },
-        _ => bending_term(rest, TanBending { k }, kd, f)?,
+        _ => bending_term(rest, TanBending { k }, f)?,
     };
     let masses = lumped_masses(rest, m.density);
     let mut terms: Vec<Box<dyn Energy>> = vec![
@@ -341,6 +358,7 @@ pub fn equilibrium(
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
         interrupted: false,
+        max_plastic_angle: None,
     };
     summary.add_timings(&mut system);
     if let Some(o) = out {
@@ -403,43 +421,83 @@ pub fn anisotropy_factors(scene: &Scene, rest: &TriMesh) -> Result<Option<Vec<f6
     }))
 }
 
+/// Reads per-hinge rest angles: whitespace-separated numbers.
+fn read_rest_angles(path: &Path) -> Result<Vec<f64>, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("bending.rest_angles: {}: {e}", path.display()))?;
+    text.split_whitespace()
+        .enumerate()
+        .map(|(i, w)| {
+            w.parse::<f64>().map_err(|_| {
+                format!(
+                    "bending.rest_angles: {}: value {i} (hinge {i}) `{w}` is not a number",
+                    path.display()
+                )
+            })
+        })
+        .collect()
+}
+
+/// What the scene adds to its ψ: damping, anisotropy factors, rest angles, plasticity.
+#[derive(Clone, Copy)]
+struct HingeOptions<'a> {
+    damping: f64,
+    anisotropy: Option<&'a [f64]>,
+    rest_angles: Option<&'a [f64]>,
+    plasticity: Option<Plasticity>,
+}
+
 fn bending_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
-    damping: f64,
-    anisotropy: Option<&[f64]>,
+    o: HingeOptions<'_>,
 ) -> Result<Box<dyn Energy>, String>
 where
     P::Params: Send + Sync,
 {
-    match anisotropy {
-        Some(f) => hinge_term(rest, Anisotropic::new(psi, f.to_vec()), damping),
-        None => hinge_term(rest, psi, damping),
+    match o.anisotropy {
+        Some(f) => hinge_term(rest, Anisotropic::new(psi, f.to_vec()), o),
+        None => hinge_term(rest, psi, o),
     }
 }
 
 fn hinge_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
-    damping: f64,
+    o: HingeOptions<'_>,
 ) -> Result<Box<dyn Energy>, String>
 where
     P::Params: Send + Sync,
 {
+    fn finish<Q: HingePsi + Send + 'static>(
+        mut model: BendingModel<Q>,
+        o: HingeOptions<'_>,
+    ) -> Result<Box<dyn Energy>, String>
+    where
+        Q::Params: Send + Sync,
+    {
+        if let Some(t) = o.rest_angles {
+            model
+                .set_rest_angles(t)
+                .map_err(|e| format!("bending.rest_angles: {e}"))?;
+        }
+        let term = HingeTerm::new("bending", model, Method::Refactored);
+        Ok(Box::new(match o.plasticity {
+            Some(p) => term
+                .with_plasticity(p)
+                .map_err(|e| format!("bending.plasticity: {e}"))?,
+            None => term,
+        }))
+    }
     let err = |e: hinge_core::EvalError| e.to_string();
-    Ok(if damping > 0.0 {
-        Box::new(HingeTerm::new(
-            "bending",
-            BendingModel::new(rest, (psi, ViscousDamping { kd: damping })).map_err(err)?,
-            Method::Refactored,
-        ))
+    if o.damping > 0.0 {
+        finish(
+            BendingModel::new(rest, (psi, ViscousDamping { kd: o.damping })).map_err(err)?,
+            o,
+        )
     } else {
-        Box::new(HingeTerm::new(
-            "bending",
-            BendingModel::new(rest, psi).map_err(err)?,
-            Method::Refactored,
-        ))
-    })
+        finish(BendingModel::new(rest, psi).map_err(err)?, o)
+    }
 }
 
 /// Where and how a run writes its output.
@@ -525,6 +583,7 @@ pub fn simulate_until(
         max_final_gradient_norm: 0.0,
         smallest_substep_fraction: 1.0,
         interrupted: false,
+        max_plastic_angle: None,
     };
     // Every `every`-th frame (and the last) goes into the animation.
     let every = (scene.frames + 1)
@@ -539,7 +598,20 @@ pub fn simulate_until(
         let name = format!("frame_{k:04}.{}", o.format.extension());
         write_mesh(o.dir.join(name), x, rest.triangles()).map_err(|e| e.to_string())
     };
+    // Evolving (plastic) rest angles beside the frames: `[bending] rest_angles` restarts from them.
+    let write_rest_angles = |k: usize, system: &hinge_core::energy::System| -> Result<(), String> {
+        let (Some(o), Some(angles)) = (out, system.evolving_rest_angles()) else {
+            return Ok(());
+        };
+        let mut text = String::with_capacity(24 * angles.len());
+        for a in angles {
+            text.push_str(&format!("{a:.17e}\n"));
+        }
+        let path = o.dir.join(format!("rest_angles_{k:04}.txt"));
+        std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))
+    };
     write_frame(0, &x, false)?;
+    write_rest_angles(0, &system)?;
     let policy = SubstepPolicy {
         max_halvings: scene.solver.max_substep_halvings,
     };
@@ -581,6 +653,8 @@ pub fn simulate_until(
         // The animation ends on the last frame done.
         let last = interrupted || frame + 1 == scene.frames;
         write_frame(frame + 1, &x, last)?;
+        write_rest_angles(frame + 1, &system)?;
+        summary.max_plastic_angle = system.max_plastic_angle();
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
         if interrupted {
             summary.frames = frame + 1;
@@ -737,6 +811,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         "max_speed": summary.max_speed,
         "static": args.statics,
         "interrupted": summary.interrupted,
+        "max_plastic_angle": summary.max_plastic_angle,
     });
     let path = out.join("summary.json");
     std::fs::write(

@@ -160,6 +160,26 @@ pub struct BendingSpec {
     /// Warp/weft anisotropy (none: isotropic).
     #[serde(default)]
     pub anisotropy: Option<AnisotropySpec>,
+    /// Bending plasticity (none: elastic).
+    #[serde(default)]
+    pub plasticity: Option<PlasticitySpec>,
+    /// Rest angles to start from, one per hinge in hinge order (whitespace-separated numbers in a text
+    /// file, relative to the scene file): a plastic run's `rest_angles_NNNN.txt`, to restart with its
+    /// creases. Unset: the rest mesh's own.
+    #[serde(default)]
+    pub rest_angles: Option<PathBuf>,
+}
+
+/// `[bending.plasticity]`: after every accepted (sub)step a hinge bent more than its yield angle away from
+/// its rest angle yields (see `hinge_core::energy::Plasticity`).
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlasticitySpec {
+    /// The initial yield angle (rad, ≥ 0).
+    pub yield_angle: f64,
+    /// Linear hardening: yield-angle growth per radian of accumulated plastic angle (≥ 0; default 0).
+    #[serde(default)]
+    pub hardening: f64,
 }
 
 /// A run-time ψ with the capacity its expression needs: 8 hoisted values per hinge (the fast default), or 32.
@@ -214,6 +234,8 @@ impl Default for BendingSpec {
             damping: 0.0,
             calibration: default_calibration(),
             anisotropy: None,
+            plasticity: None,
+            rest_angles: None,
         }
     }
 }
@@ -520,6 +542,15 @@ impl Scene {
                 "solver.substeps: must be from 1 to 10 000 000, got {}",
                 self.solver.substeps
             ));
+        }
+        if let Some(p) = &self.bending.plasticity {
+            for (key, v) in [("yield_angle", p.yield_angle), ("hardening", p.hardening)] {
+                if !(v >= 0.0 && v.is_finite()) {
+                    return Err(format!(
+                        "bending.plasticity.{key}: must be non-negative and finite, got {v}"
+                    ));
+                }
+            }
         }
         if let Some(a) = &self.bending.anisotropy {
             hinge_core::anisotropy::Anisotropy::new(a.warp, a.weft)

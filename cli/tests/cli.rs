@@ -1580,3 +1580,100 @@ fn explicit_integrator_runs_below_its_limit_and_stops_on_one_line_above_it() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn plastic_bending_writes_its_rest_angles_and_restarts_from_them() {
+    let dir = tmp("plastic");
+    // beam1 (soft cloth) hanging from its clamp yields where it bends most.
+    let file = scene_with(
+        &dir,
+        "plastic",
+        "beam1",
+        "[bending.plasticity]\nyield_angle = 0.02\nhardening = 0.5",
+    );
+    let out = dir.join("run");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "30",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let plastic = s["max_plastic_angle"].as_f64().unwrap();
+    let read = |k: usize| -> Vec<f64> {
+        std::fs::read_to_string(out.join(format!("rest_angles_{k:04}.txt")))
+            .unwrap()
+            .split_whitespace()
+            .map(|w| w.parse().unwrap())
+            .collect()
+    };
+    let (first, last) = (read(0), read(30));
+    let largest = last.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    println!(
+        "beam1 with plasticity: largest plastic angle {plastic:.4} rad, largest rest angle {largest:.4} rad after 30 frames"
+    );
+    assert!(first.iter().all(|&t| t == 0.0) && plastic > 0.05 && largest > 0.05);
+    // The accumulated plastic angle is at least the rest angle's change (monotone loading: equal).
+    assert!(plastic >= largest - 1e-12, "{plastic} {largest}");
+    // Restarted from those rest angles without plasticity, the strip's static shape keeps the crease:
+    // it sags further than the elastic strip.
+    let restart = dir.join("restart.toml");
+    let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout).replace(
+        "[bending]",
+        "[bending]\nrest_angles = \"run/rest_angles_0030.txt\"",
+    );
+    std::fs::write(&restart, text).unwrap();
+    let creased = run_summary(&dir, &[restart.to_str().unwrap(), "--static"])["far_end_drop"]
+        .as_f64()
+        .unwrap();
+    let elastic = run_summary(&dir, &["beam1", "--static"])["far_end_drop"]
+        .as_f64()
+        .unwrap();
+    println!("static tip drop: elastic {elastic:.4e} m, restarted with the crease {creased:.4e} m");
+    assert!(creased > elastic);
+    assert!(
+        run_summary(&dir, &["beam1", "--frames", "1"])["max_plastic_angle"].is_null(),
+        "no plasticity: null"
+    );
+    // Bad input: one line naming the key.
+    for (name, extra, needle) in [
+        (
+            "negative",
+            "[bending.plasticity]\nyield_angle = -0.1",
+            "bending.plasticity.yield_angle",
+        ),
+        (
+            "short",
+            "[bending]\nrest_angles = \"short.txt\"",
+            "bending.rest_angles",
+        ),
+    ] {
+        std::fs::write(dir.join("short.txt"), "0.1 0.2\n").unwrap();
+        let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout).to_string();
+        let text = if extra.starts_with("[bending]\n") {
+            text.replace("[bending]", extra)
+        } else {
+            format!("{text}\n{extra}\n")
+        };
+        let file = dir.join(format!("{name}.toml"));
+        std::fs::write(&file, text).unwrap();
+        let o = hinge(&[
+            "run",
+            file.to_str().unwrap(),
+            "--frames",
+            "1",
+            "--no-frames",
+        ]);
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(
+            !o.status.success() && e.trim().lines().count() == 1,
+            "{name}: {e}"
+        );
+        assert!(e.contains(needle), "{name}: {e}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}

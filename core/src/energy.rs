@@ -101,6 +101,57 @@ pub trait Energy: Send + Sync {
         let _ = (x_prev, dt);
         Ok(())
     }
+
+    /// An accepted (sub)step ended at `x`: update state that follows accepted motion only, such as
+    /// plastic rest angles ([`HingeTerm::with_plasticity`]). The steppers never call it for a rejected
+    /// attempt. Default: nothing.
+    ///
+    /// # Errors
+    /// As the implementation says; on error the implementation's state is unchanged.
+    fn end_step(&mut self, x: &[Vector3<f64>]) -> Result<(), EvalError> {
+        let _ = x;
+        Ok(())
+    }
+
+    /// The current rest angles (hinge order) of a hinge energy whose rest angles evolve (plasticity);
+    /// `None` for every other energy.
+    fn evolving_rest_angles(&self) -> Option<&[f64]> {
+        None
+    }
+
+    /// The largest accumulated plastic angle (rad) of an energy with plasticity; `None` otherwise.
+    fn max_plastic_angle(&self) -> Option<f64> {
+        None
+    }
+}
+
+/// Bending plasticity of a [`HingeTerm`]: after every accepted (sub)step, a hinge whose angle θ has moved
+/// more than its yield angle from its rest angle θ̄ yields, θ̄ moving towards θ, with linear hardening:
+/// the yield angle grows with the accumulated plastic angle α,
+///
+/// ```text
+/// y = yield_angle + hardening · α,   if |θ − θ̄| > y:  Δ = sign(θ − θ̄) (|θ − θ̄| − y) / (1 + hardening),
+///                                                      θ̄ ← θ̄ + Δ,  α ← α + |Δ|,
+/// ```
+///
+/// so that afterwards `|θ − θ̄| = yield_angle + hardening · α` exactly (the return mapping of 1-D linear
+/// hardening). Within a step the energy and its derivatives are those of the current θ̄.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plasticity {
+    /// The initial yield angle (rad, ≥ 0).
+    pub yield_angle: f64,
+    /// Linear hardening modulus (dimensionless, ≥ 0): yield-angle growth per radian of plastic angle.
+    pub hardening: f64,
+}
+
+/// The evolving state of a [`Plasticity`].
+#[derive(Debug, Clone)]
+struct PlasticState {
+    law: Plasticity,
+    theta_bar: Vec<f64>,
+    accumulated: Vec<f64>,
+    /// Work vector for the angles at the end of a step.
+    theta: Vec<f64>,
 }
 
 /// A hinge energy ψ (one ψ, or a tuple of ψ terms sharing one geometric pass) as a system [`Energy`].
@@ -109,6 +160,7 @@ pub struct HingeTerm<P: HingePsi> {
     model: BendingModel<P>,
     method: Method,
     scratch: Scratch,
+    plastic: Option<PlasticState>,
 }
 
 impl<P: HingePsi> std::fmt::Debug for HingeTerm<P> {
@@ -129,7 +181,45 @@ impl<P: HingePsi> HingeTerm<P> {
             model,
             method,
             scratch,
+            plastic: None,
         }
+    }
+
+    /// Makes the rest angles plastic ([`Plasticity`]): [`Energy::end_step`] updates them after every
+    /// accepted step.
+    ///
+    /// # Errors
+    /// [`EvalError::Psi`] naming `yield_angle` or `hardening` when it is negative or not finite.
+    pub fn with_plasticity(mut self, law: Plasticity) -> Result<Self, EvalError> {
+        for (name, v) in [
+            ("yield_angle", law.yield_angle),
+            ("hardening", law.hardening),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(EvalError::Psi(crate::psi::PsiError {
+                    name: name.into(),
+                    message: format!("must be non-negative and finite, got {v}"),
+                }));
+            }
+        }
+        let theta_bar: Vec<f64> = self
+            .model
+            .rest_hinges()
+            .iter()
+            .map(|r| r.theta_bar)
+            .collect();
+        self.plastic = Some(PlasticState {
+            law,
+            accumulated: vec![0.0; theta_bar.len()],
+            theta: Vec::with_capacity(theta_bar.len()),
+            theta_bar,
+        });
+        Ok(self)
+    }
+
+    /// The accumulated plastic angle α of every hinge (hinge order), if plastic.
+    pub fn plastic_angles(&self) -> Option<&[f64]> {
+        self.plastic.as_ref().map(|p| p.accumulated.as_slice())
     }
 
     /// The wrapped model.
@@ -186,6 +276,59 @@ where
 
     fn begin_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
         self.model.set_step(x_prev, dt)
+    }
+
+    fn end_step(&mut self, x: &[Vector3<f64>]) -> Result<(), EvalError> {
+        let Some(state) = self.plastic.as_mut() else {
+            return Ok(());
+        };
+        check_same_vertex_count(self.model.n_vertices(), x.len())?;
+        // Every angle first (an error leaves the state as it was), then the return mapping.
+        state.theta.clear();
+        for (i, h) in self.model.topology().hinges().iter().enumerate() {
+            let s = h.vertices.map(|v| x[v]);
+            let theta = crate::hinge::theta_only(&s).map_err(|source| EvalError::Hinge {
+                hinge: i,
+                edge: h.edge,
+                vertices: h.vertices,
+                source,
+            })?;
+            state.theta.push(theta);
+        }
+        let Plasticity {
+            yield_angle,
+            hardening,
+        } = state.law;
+        let mut changed = false;
+        for ((tb, alpha), &theta) in state
+            .theta_bar
+            .iter_mut()
+            .zip(state.accumulated.iter_mut())
+            .zip(&state.theta)
+        {
+            let d = theta - *tb;
+            let y = yield_angle + hardening * *alpha;
+            if d.abs() > y {
+                let step = (d.abs() - y) / (1.0 + hardening);
+                *tb += step.copysign(d);
+                *alpha += step;
+                changed = true;
+            }
+        }
+        if changed {
+            self.model.set_rest_angles(&state.theta_bar)?;
+        }
+        Ok(())
+    }
+
+    fn evolving_rest_angles(&self) -> Option<&[f64]> {
+        self.plastic.as_ref().map(|p| p.theta_bar.as_slice())
+    }
+
+    fn max_plastic_angle(&self) -> Option<f64> {
+        self.plastic
+            .as_ref()
+            .map(|p| p.accumulated.iter().copied().fold(0.0, f64::max))
     }
 }
 
@@ -309,6 +452,31 @@ impl System {
             t.begin_step(x_prev, dt)?;
         }
         Ok(())
+    }
+
+    /// Ends an accepted (sub)step at `x` for every term (see [`Energy::end_step`]).
+    ///
+    /// # Errors
+    /// The first term's error; terms before it have already ended the step.
+    pub fn end_step(&mut self, x: &[Vector3<f64>]) -> Result<(), EvalError> {
+        check_same_vertex_count(self.n_vertices, x.len())?;
+        for t in &mut self.terms {
+            t.end_step(x)?;
+        }
+        Ok(())
+    }
+
+    /// The evolving rest angles of the first term that has them (see [`Energy::evolving_rest_angles`]).
+    pub fn evolving_rest_angles(&self) -> Option<&[f64]> {
+        self.terms.iter().find_map(|t| t.evolving_rest_angles())
+    }
+
+    /// The largest accumulated plastic angle over the terms with plasticity (`None` if none has it).
+    pub fn max_plastic_angle(&self) -> Option<f64> {
+        self.terms
+            .iter()
+            .filter_map(|t| t.max_plastic_angle())
+            .reduce(f64::max)
     }
 
     /// Evaluates every term at `x` into `out` (overwritten). Unrequested outputs are left untouched.

@@ -214,6 +214,9 @@ impl SymplecticEuler {
                 "the kinetic energy reached {ke:.3e} J, more than the {bound:.3e} J the start's energy and forces could supply"
             )));
         }
+        system
+            .end_step(x)
+            .map_err(|e| unstable(format!("the step cannot be ended ({e})")))?;
         self.substeps_done += 1;
         Ok(())
     }

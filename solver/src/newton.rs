@@ -874,7 +874,8 @@ impl ImplicitEuler {
     }
 
     /// One step of [`ImplicitEuler::dt`]: minimises the incremental potential from `x̂ = x + Δt v` (pinned
-    /// vertices stay put and keep zero velocity), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are
+    /// vertices stay put and keep zero velocity), ends the step for the energies at the new positions
+    /// ([`System::end_step`]: plastic rest angles), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are
     /// unchanged, and the system's step state (damping's θ_prev, drag's previous positions) is set back to
     /// that of the last accepted step (before any step was accepted, it stays as set for this attempt's
     /// start, which is what a retry sets again).
@@ -927,6 +928,14 @@ impl ImplicitEuler {
                 let stats = self.newton.minimize(system, &mut next, Some(&inertia))?;
                 Ok((next, stats))
             });
+        // An accepted step ends for the energies (plastic rest angles follow it); a rejected one never does.
+        let result = result.and_then(|(next, stats)| match system.end_step(&next) {
+            Ok(()) => Ok((next, stats)),
+            Err(source) => Err(SolverError::Eval {
+                source,
+                stats: Box::new(stats),
+            }),
+        });
         match result {
             Ok((next, stats)) => {
                 self.committed = Some((x.to_vec(), dt));

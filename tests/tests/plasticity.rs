@@ -1,0 +1,320 @@
+//! Bending plasticity: the rest-angle return mapping with linear hardening, applied only after accepted
+//! (sub)steps, against the law computed by hand; the energy with updated rest angles against finite
+//! differences.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Accumulator, Energy, HingeTerm, Plasticity, System};
+use hinge_core::pattern::SymmetricPattern;
+use hinge_core::psi::DiscreteShells;
+use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
+use hinge_core::{EvalError, TriMesh};
+use hinge_energies::gravity::lumped_masses;
+use hinge_energies::pins::Pins;
+use hinge_solver::linear::default_solver;
+use hinge_solver::newton::{ImplicitEuler, Newton, NewtonParams, SubstepPolicy};
+use hinge_tests::*;
+use nalgebra::Vector3;
+
+/// One hinge along the x axis, flat at rest; `fold(θ)` turns the wing x3 about the edge by θ.
+fn one_hinge() -> (TriMesh, impl Fn(f64) -> Vec<Vector3<f64>>) {
+    let p = vec![
+        Vector3::new(0.45, 0.8, 0.0),
+        Vector3::new(0.0, 0.0, 0.0),
+        Vector3::new(1.0, 0.0, 0.0),
+        Vector3::new(0.6, -0.9, 0.0),
+    ];
+    let rest = TriMesh::new(p.clone(), vec![[0, 1, 2], [3, 2, 1]]).unwrap();
+    let fold = move |theta: f64| {
+        let mut x = p.clone();
+        let (s, c) = theta.sin_cos();
+        x[3] = Vector3::new(0.6, -0.9 * c, -0.9 * s);
+        x
+    };
+    (rest, fold)
+}
+
+fn theta_of(x: &[Vector3<f64>]) -> f64 {
+    hinge_core::hinge::theta_only(&[x[0], x[1], x[2], x[3]]).unwrap()
+}
+
+#[test]
+fn return_mapping_with_linear_hardening_matches_the_law() {
+    let (rest, fold) = one_hinge();
+    let law = Plasticity {
+        yield_angle: 0.1,
+        hardening: 0.5,
+    };
+    let term = |r: &TriMesh| {
+        HingeTerm::new(
+            "bending",
+            BendingModel::new(r, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        )
+        .with_plasticity(law)
+        .unwrap()
+    };
+    let mut t = term(&rest);
+    // Below yield: no change; the released hinge returns flat.
+    let x = fold(0.08);
+    t.end_step(&x).unwrap();
+    assert_eq!(t.evolving_rest_angles().unwrap(), &[0.0]);
+    assert_eq!(t.max_plastic_angle(), Some(0.0));
+    // Above: θ̄ = sign θ (|θ| − y) / (1 + H), α = |Δ|; afterwards |θ − θ̄| = y + H α.
+    let theta1 = theta_of(&fold(0.5));
+    t.end_step(&fold(0.5)).unwrap();
+    let expected1 = (theta1.abs() - 0.1) / 1.5 * theta1.signum();
+    let tb = t.evolving_rest_angles().unwrap()[0];
+    println!("fold θ = {theta1:.6}: rest angle {tb:.12} (law {expected1:.12})");
+    assert!((tb - expected1).abs() < 1e-15, "{tb} vs {expected1}");
+    let alpha = t.max_plastic_angle().unwrap();
+    assert!(((theta1 - tb).abs() - (0.1 + 0.5 * alpha)).abs() < 1e-15);
+    // Reloading below the hardened yield changes nothing; beyond it, the yield has grown by H α.
+    t.end_step(&fold(theta1 - 0.1)).unwrap();
+    assert_eq!(t.evolving_rest_angles().unwrap()[0], tb);
+    let theta2 = theta_of(&fold(0.9));
+    t.end_step(&fold(0.9)).unwrap();
+    let y = 0.1 + 0.5 * alpha;
+    let expected2 = tb + (theta2 - tb - y) / 1.5;
+    let tb2 = t.evolving_rest_angles().unwrap()[0];
+    println!("fold θ = {theta2:.6}: rest angle {tb2:.12} (law {expected2:.12}, yield {y:.6})");
+    assert!((tb2 - expected2).abs() < 1e-15);
+    // Folding the other way yields by the same law (the sign of θ − θ̄), with the yield hardened by the
+    // plastic angle accumulated either way.
+    let alpha2 = t.max_plastic_angle().unwrap();
+    let theta3 = theta_of(&fold(-0.6));
+    t.end_step(&fold(-0.6)).unwrap();
+    let y3 = 0.1 + 0.5 * alpha2;
+    let expected3 = tb2 - ((theta3 - tb2).abs() - y3) / 1.5;
+    let tb3 = t.evolving_rest_angles().unwrap()[0];
+    println!("fold θ = {theta3:.6}: rest angle {tb3:.12} (law {expected3:.12}, yield {y3:.6})");
+    assert!((tb3 - expected3).abs() < 1e-15);
+    // Released (x0, x1, x2 pinned; no load), the hinge rests at its current θ̄: the residual angle.
+    let mut sys = System::new(4, vec![Box::new(term(&rest))]).unwrap();
+    sys.end_step(&fold(0.5)).unwrap();
+    let pins = Pins::new(4, vec![0, 1, 2]).unwrap();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params_tight()).unwrap();
+    let mut y = fold(0.5);
+    newton.minimize(&mut sys, &mut y, None).unwrap();
+    let residual = theta_of(&y);
+    println!(
+        "released after a fold of {theta1:.6}: residual angle {residual:.9} (law {expected1:.9})"
+    );
+    assert!(
+        (residual - expected1).abs() < 1e-7,
+        "{residual} vs {expected1}"
+    );
+    // Below yield the released hinge recovers fully.
+    let mut sys = System::new(4, vec![Box::new(term(&rest))]).unwrap();
+    sys.end_step(&fold(0.08)).unwrap();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params_tight()).unwrap();
+    let mut y = fold(0.08);
+    newton.minimize(&mut sys, &mut y, None).unwrap();
+    assert!(theta_of(&y).abs() < 1e-7, "{}", theta_of(&y));
+    // Bad laws are typed errors naming the key.
+    for bad in [
+        Plasticity {
+            yield_angle: -0.1,
+            hardening: 0.0,
+        },
+        Plasticity {
+            yield_angle: 0.1,
+            hardening: f64::NAN,
+        },
+    ] {
+        let e = HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        )
+        .with_plasticity(bad)
+        .err()
+        .unwrap();
+        assert!(matches!(e, EvalError::Psi(_)), "{e}");
+    }
+}
+
+fn params_tight() -> NewtonParams {
+    NewtonParams {
+        gradient_tolerance: 1e-13,
+        max_iterations: 200,
+        ..NewtonParams::default()
+    }
+}
+
+#[test]
+fn the_energy_with_updated_rest_angles_matches_finite_differences() {
+    let irr = irregular_sheet(7, 6, 2).unwrap();
+    let rest = renumber(&irr, &random_permutation(irr.n_vertices(), 4)).unwrap();
+    let x = bend(rest.positions());
+    let mut sys = System::new(
+        rest.n_vertices(),
+        vec![Box::new(
+            HingeTerm::new(
+                "bending",
+                BendingModel::new(&rest, DiscreteShells { k: 0.7 }).unwrap(),
+                Method::Refactored,
+            )
+            .with_plasticity(Plasticity {
+                yield_angle: 0.05,
+                hardening: 0.2,
+            })
+            .unwrap(),
+        )],
+    )
+    .unwrap();
+    sys.end_step(&x).unwrap();
+    let moved = sys
+        .evolving_rest_angles()
+        .unwrap()
+        .iter()
+        .filter(|&&t| t != 0.0)
+        .count();
+    assert!(moved > 0 && sys.max_plastic_angle().unwrap() > 0.0);
+    // A state off the yield surface, and the derivatives there.
+    let y: Vec<_> = x
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.0, 0.02 * p.x))
+        .collect();
+    let ev = sys
+        .evaluate(&y, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    let (fd_g, fd_h) = fd_energy_derivatives(&y, 1e-6, |z| {
+        let r = sys
+            .evaluate(z, Request::GRADIENT, Parallelism::Sequential)
+            .unwrap();
+        (r.energy, r.gradient)
+    });
+    let (eg, eh) = (
+        rel_error(&ev.gradient, &fd_g),
+        rel_error(&sym_dense(sys.pattern(), &ev.hessian), &fd_h),
+    );
+    println!(
+        "{moved} hinges yielded; with the updated rest angles: gradient vs FD {eg:.1e}, Hessian {eh:.1e}"
+    );
+    assert!(eg < 1e-7 && eh < 1e-6);
+}
+
+fn bend(x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    hinge_core::shapes::bend(x)
+}
+
+/// Zero energy that refuses steps longer than `max_dt` (forcing substeps) and counts the accepted steps
+/// that end.
+struct StepGate {
+    n: usize,
+    max_dt: f64,
+    dt: f64,
+    ended: Arc<AtomicUsize>,
+}
+
+impl Energy for StepGate {
+    fn name(&self) -> &str {
+        "gate"
+    }
+    fn n_vertices(&self) -> usize {
+        self.n
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(&mut self, _: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        _: &[Vector3<f64>],
+        _: Request,
+        _: Parallelism,
+        _: &mut Accumulator,
+    ) -> Result<f64, EvalError> {
+        if self.dt > self.max_dt {
+            Err(EvalError::Step { dt: self.dt })
+        } else {
+            Ok(0.0)
+        }
+    }
+    fn begin_step(&mut self, _: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
+        self.dt = dt;
+        Ok(())
+    }
+    fn end_step(&mut self, _: &[Vector3<f64>]) -> Result<(), EvalError> {
+        self.ended.fetch_add(1, Ordering::SeqCst);
+        Ok(())
+    }
+}
+
+#[test]
+fn rest_angles_follow_accepted_substeps_only() {
+    // A folded hinge springing open under implicit Euler with plasticity; the gate rejects steps above
+    // dt/3: the frame's dt and dt/2 are rejected, dt/4 accepted twice, the grown-back dt/2 rejected again,
+    // dt/4 accepted twice more: 4 accepted substeps, 3 rejected attempts. Each accepted substep ends once,
+    // a rejected attempt never.
+    let (rest, fold) = one_hinge();
+    let ended = Arc::new(AtomicUsize::new(0));
+    let dt = 0.01;
+    let make = |max_dt: f64| {
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(
+                HingeTerm::new(
+                    "bending",
+                    BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+                    Method::Refactored,
+                )
+                .with_plasticity(Plasticity {
+                    yield_angle: 0.05,
+                    hardening: 0.0,
+                })
+                .unwrap(),
+            ),
+            Box::new(StepGate {
+                n: 4,
+                max_dt,
+                dt: 0.0,
+                ended: Arc::clone(&ended),
+            }),
+        ];
+        System::new(4, terms).unwrap()
+    };
+    let mut sys = make(dt / 3.0);
+    let pins = Pins::new(4, vec![0, 1, 2]).unwrap();
+    let masses = lumped_masses(&rest, 1.0);
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        dt,
+        masses.clone(),
+        pins.clone(),
+        default_solver(),
+        params_tight(),
+    )
+    .unwrap();
+    let (mut x, mut v) = (fold(0.6), vec![Vector3::zeros(); 4]);
+    let fs = stepper
+        .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 4 })
+        .unwrap();
+    println!(
+        "frame: {} accepted substeps, {} rejected attempts, {} step ends; rest angle {:.6}",
+        fs.substeps,
+        fs.failed_attempts,
+        ended.load(Ordering::SeqCst),
+        sys.evolving_rest_angles().unwrap()[0]
+    );
+    assert_eq!(fs.substeps, 4);
+    assert_eq!(fs.failed_attempts, 3);
+    assert_eq!(ended.load(Ordering::SeqCst), 4);
+    assert!(sys.evolving_rest_angles().unwrap()[0] != 0.0);
+    // A frame that fails at every substep leaves the rest angles as they were.
+    ended.store(0, Ordering::SeqCst);
+    let mut sys = make(dt / 1000.0);
+    let mut stepper =
+        ImplicitEuler::new(&sys, dt, masses, pins, default_solver(), params_tight()).unwrap();
+    let (mut x, mut v) = (fold(0.6), vec![Vector3::zeros(); 4]);
+    assert!(
+        stepper
+            .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 3 })
+            .is_err()
+    );
+    assert_eq!(ended.load(Ordering::SeqCst), 0);
+    assert_eq!(sys.evolving_rest_angles().unwrap(), &[0.0]);
+    assert_eq!(x, fold(0.6));
+}
