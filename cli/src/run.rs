@@ -34,7 +34,7 @@ use hinge_solver::linear::{
 use crate::scene::Scene;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
-    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, SubstepPolicy,
+    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SubstepPolicy,
 };
 
 /// Arguments of `hinge run`.
@@ -253,13 +253,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         length_scale: mean_edge_length(rest),
         ..NewtonParams::default()
     };
-    let solver: Box<dyn LinearSolver> = match scene.solver.backend.as_str() {
-        "faer-lu" => Box::new(FaerLu::default()),
-        "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
-        "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
-        "dense" => Box::new(Dense::default()),
-        _ => default_solver(),
-    };
+    let solver = linear_solver(scene);
     Ok(Built {
         system,
         masses,
@@ -421,6 +415,17 @@ pub fn anisotropy_factors(scene: &Scene, rest: &TriMesh) -> Result<Option<Vec<f6
     }))
 }
 
+/// The scene's linear-solver backend.
+fn linear_solver(scene: &Scene) -> Box<dyn LinearSolver> {
+    match scene.solver.backend.as_str() {
+        "faer-lu" => Box::new(FaerLu::default()),
+        "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
+        "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
+        "dense" => Box::new(Dense::default()),
+        _ => default_solver(),
+    }
+}
+
 /// Reads per-hinge rest angles: whitespace-separated numbers.
 fn read_rest_angles(path: &Path) -> Result<Vec<f64>, String> {
     let text = std::fs::read_to_string(path)
@@ -552,17 +557,55 @@ pub fn simulate_until(
         params,
         obstacles,
     } = build(scene, rest, true)?;
-    let mut stepper = if scene.solver.integrator == "symplectic-euler" {
-        Stepper::Explicit(
-            SymplecticEuler::new(&system, scene.dt, scene.solver.substeps, masses, &pins)
+    let groups = scene.pin_groups(rest)?;
+    let fixed: Vec<usize> = scene.fixed_pins(rest)?;
+    let make_stepper = |system: &hinge_core::energy::System,
+                        active: &[bool],
+                        solver: Box<dyn LinearSolver>|
+     -> Result<Stepper, String> {
+        let mut pinned = fixed.clone();
+        for (g, on) in groups.iter().zip(active) {
+            if *on {
+                pinned.extend_from_slice(&g.vertices);
+            }
+        }
+        pinned.sort_unstable();
+        pinned.dedup();
+        let pins = hinge_energies::pins::Pins::new(n, pinned).map_err(|e| format!("pins: {e}"))?;
+        Ok(if scene.solver.integrator == "symplectic-euler" {
+            Stepper::Explicit(
+                SymplecticEuler::new(
+                    system,
+                    scene.dt,
+                    scene.solver.substeps,
+                    masses.clone(),
+                    &pins,
+                )
                 .map_err(|e| e.to_string())?,
-        )
-    } else {
-        Stepper::Implicit(Box::new(
-            ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params)
+            )
+        } else {
+            Stepper::Implicit(Box::new(
+                ImplicitEuler::new(
+                    system,
+                    scene.dt,
+                    masses.clone(),
+                    pins,
+                    solver,
+                    params.clone(),
+                )
                 .map_err(|e| e.to_string())?,
-        ))
+            ))
+        })
     };
+    drop(pins);
+    let active_at = |t: f64| -> Vec<bool> {
+        groups
+            .iter()
+            .map(|g| g.release.is_none_or(|r| t < r))
+            .collect()
+    };
+    let mut active = active_at(0.0);
+    let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let mut summary = RunSummary {
         frames: scene.frames,
@@ -617,22 +660,42 @@ pub fn simulate_until(
     };
     for frame in 0..scene.frames {
         let t = Instant::now();
+        let t0 = frame as f64 * scene.dt;
+        // Released groups leave the pins at the first frame that starts at or after their release time.
+        let now = active_at(t0);
+        if now != active {
+            active = now;
+            stepper = make_stepper(&system, &active, linear_solver(scene))?;
+        }
+        let targets = |fraction: f64, y: &mut [Vector3<f64>]| {
+            let time = t0 + fraction * scene.dt;
+            for (g, on) in groups.iter().zip(&active) {
+                if *on {
+                    for &vtx in &g.vertices {
+                        y[vtx] = g.motion.target(rest.positions()[vtx], time);
+                    }
+                }
+            }
+        };
+        let motion: Option<&dyn PinMotion> = (!groups.is_empty()).then_some(&targets);
         let fs = match &mut stepper {
-            Stepper::Implicit(s) => s.advance(&mut system, &mut x, &mut v, policy).map_err(
-                |e| {
+            Stepper::Implicit(s) => s
+                .advance_with(&mut system, &mut x, &mut v, policy, motion)
+                .map_err(|e| {
                     format!(
                         "frame {}: {e} (also in substeps down to dt/{}; {frame} frames completed)",
                         frame + 1,
                         1u64 << policy.max_halvings.min(30)
                     )
-                },
-            )?,
-            Stepper::Explicit(s) => s.advance(&mut system, &mut x, &mut v).map_err(|e| {
-                format!(
-                    "frame {}: {e} ({frame} frames completed; written up to frame_{frame:04})",
-                    frame + 1
-                )
-            })?,
+                })?,
+            Stepper::Explicit(s) => s
+                .advance_with(&mut system, &mut x, &mut v, motion)
+                .map_err(|e| {
+                    format!(
+                        "frame {}: {e} ({frame} frames completed; written up to frame_{frame:04})",
+                        frame + 1
+                    )
+                })?,
         };
         let stats = &fs.newton;
         summary.newton_iterations += stats.iterations;

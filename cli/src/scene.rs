@@ -12,7 +12,7 @@ use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
-pub const BUILT_IN: [(&str, &str); 8] = [
+pub const BUILT_IN: [(&str, &str); 9] = [
     ("drape", include_str!("../scenes/drape.toml")),
     ("shell-drop", include_str!("../scenes/shell-drop.toml")),
     ("beam1", include_str!("../scenes/beam1.toml")),
@@ -24,6 +24,7 @@ pub const BUILT_IN: [(&str, &str); 8] = [
         "anisotropic-drape",
         include_str!("../scenes/anisotropic-drape.toml"),
     ),
+    ("twist", include_str!("../scenes/twist.toml")),
 ];
 
 /// The one-line description of a scene's TOML text: the first sentence of its leading comment, without the
@@ -303,6 +304,112 @@ pub struct PinSpec {
     pub x_at_most: Option<f64>,
     /// Grid scenes: pin the first N vertex columns (x = 0, h_x, …): two columns clamp the edge.
     pub clamp_columns: Option<usize>,
+    /// Pin groups with a prescribed motion (`[[pins.groups]]`).
+    #[serde(default)]
+    pub groups: Vec<PinGroupSpec>,
+}
+
+/// `[[pins.groups]]`: vertices moved along a prescribed path from their rest positions, optionally
+/// released (unpinned) at a time.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PinGroupSpec {
+    /// Vertex indices.
+    #[serde(default)]
+    pub vertices: Vec<usize>,
+    /// Also every vertex with rest x ≥ this.
+    pub x_at_least: Option<f64>,
+    /// Also every vertex with rest x ≤ this.
+    pub x_at_most: Option<f64>,
+    /// The motion.
+    pub motion: MotionSpec,
+    /// Time (s) from which the group is free: it is released at the first frame starting at or after it.
+    pub release: Option<f64>,
+}
+
+/// A prescribed motion of a pin group: the target of a vertex with rest position p at time t.
+#[derive(Debug, Clone, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MotionSpec {
+    /// `fixed` (p), `translation` (p + velocity·t), `rotation` (p turned about the line through `center`
+    /// along `axis` by angular_velocity·t, right-handed) or `keyframes` (p + the offset interpolated
+    /// linearly between `times` — from zero at t = 0 to the first —, held after the last).
+    pub kind: String,
+    /// Translation velocity (m/s).
+    pub velocity: Option<[f64; 3]>,
+    /// Rotation axis.
+    pub axis: Option<[f64; 3]>,
+    /// A point on the rotation axis.
+    pub center: Option<[f64; 3]>,
+    /// Angular velocity (rad/s).
+    pub angular_velocity: Option<f64>,
+    /// Keyframe times (s), increasing.
+    pub times: Option<Vec<f64>>,
+    /// Keyframe offsets (m), one per time.
+    pub offsets: Option<Vec<[f64; 3]>>,
+}
+
+/// A checked pin group.
+#[derive(Debug, Clone)]
+pub struct PinGroup {
+    /// Its vertices (sorted, no duplicates).
+    pub vertices: Vec<usize>,
+    /// Its motion.
+    pub motion: Motion,
+    /// Release time.
+    pub release: Option<f64>,
+}
+
+/// A checked [`MotionSpec`].
+#[derive(Debug, Clone)]
+pub enum Motion {
+    /// Held at rest.
+    Fixed,
+    /// Constant velocity.
+    Translation(Vector3<f64>),
+    /// Rotation about the line through `center` along the unit `axis`.
+    Rotation {
+        /// A point on the axis.
+        center: Vector3<f64>,
+        /// Unit axis.
+        axis: Vector3<f64>,
+        /// rad/s.
+        angular_velocity: f64,
+    },
+    /// Piecewise linear offsets `(time, offset)`.
+    Keyframes(Vec<(f64, Vector3<f64>)>),
+}
+
+impl Motion {
+    /// The target at time `t` of a vertex whose rest position is `p`.
+    pub fn target(&self, p: Vector3<f64>, t: f64) -> Vector3<f64> {
+        match self {
+            Motion::Fixed => p,
+            Motion::Translation(v) => p + v * t,
+            Motion::Rotation {
+                center,
+                axis,
+                angular_velocity,
+            } => {
+                let r = hinge_core::nalgebra::Rotation3::from_axis_angle(
+                    &hinge_core::nalgebra::Unit::new_unchecked(*axis),
+                    angular_velocity * t,
+                );
+                center + r * (p - center)
+            }
+            Motion::Keyframes(k) => {
+                let offset = match k.iter().position(|(tk, _)| *tk > t) {
+                    None => k.last().map_or(Vector3::zeros(), |(_, o)| *o),
+                    Some(0) => k[0].1 * (t / k[0].0),
+                    Some(i) => {
+                        let ((ta, a), (tb, b)) = (k[i - 1], k[i]);
+                        a + (b - a) * ((t - ta) / (tb - ta))
+                    }
+                };
+                p + offset
+            }
+        }
+    }
 }
 
 /// Newton and linear-solver settings.
@@ -776,6 +883,33 @@ impl Scene {
     /// # Errors
     /// `clamp_columns` wider than the grid.
     pub fn pinned(&self, rest: &TriMesh) -> Result<Vec<usize>, String> {
+        let mut pinned = self.fixed_pins(rest)?;
+        for g in self.pin_groups(rest)? {
+            pinned.extend(g.vertices);
+        }
+        pinned.sort_unstable();
+        pinned.dedup();
+        Ok(pinned)
+    }
+
+    /// The pin groups of `[[pins.groups]]`, checked.
+    ///
+    /// # Errors
+    /// A one-line message naming the group and key.
+    pub fn pin_groups(&self, rest: &TriMesh) -> Result<Vec<PinGroup>, String> {
+        self.pins
+            .groups
+            .iter()
+            .enumerate()
+            .map(|(i, g)| pin_group(i, g, rest))
+            .collect()
+    }
+
+    /// The pins without a motion (`[pins]` `vertices`, `x_at_most`, `clamp_columns`).
+    ///
+    /// # Errors
+    /// A one-line message naming the key.
+    pub fn fixed_pins(&self, rest: &TriMesh) -> Result<Vec<usize>, String> {
         let mut pinned = self.pins.vertices.clone();
         if let Some(xmax) = self.pins.x_at_most {
             pinned.extend((0..rest.n_vertices()).filter(|&v| rest.positions()[v].x <= xmax));
@@ -865,4 +999,119 @@ impl Scene {
         let moved = g.positions().iter().map(|p| p + o).collect();
         g.with_positions(moved).map_err(|e| format!("mesh: {e}"))
     }
+}
+
+/// Checks pin group `i`.
+fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, String> {
+    let n = rest.n_vertices();
+    let key = |k: &str| format!("pins.groups[{i}].{k}");
+    let finite3 = |v: &[f64; 3]| v.iter().all(|c| c.is_finite());
+    let mut vertices = g.vertices.clone();
+    if let Some(&v) = vertices.iter().find(|&&v| v >= n) {
+        return Err(format!(
+            "{}: vertex {v} does not exist (the mesh has {n} vertices, numbered from 0)",
+            key("vertices")
+        ));
+    }
+    if let Some(x) = g.x_at_least {
+        vertices.extend((0..n).filter(|&v| rest.positions()[v].x >= x));
+    }
+    if let Some(x) = g.x_at_most {
+        vertices.extend((0..n).filter(|&v| rest.positions()[v].x <= x));
+    }
+    vertices.sort_unstable();
+    vertices.dedup();
+    if vertices.is_empty() {
+        return Err(format!("pins.groups[{i}]: selects no vertex"));
+    }
+    if let Some(r) = g.release
+        && !(r >= 0.0 && r.is_finite())
+    {
+        return Err(format!("{}: must be non-negative, got {r}", key("release")));
+    }
+    let m = &g.motion;
+    let need = |name: &str, v: Option<[f64; 3]>| -> Result<Vector3<f64>, String> {
+        match v {
+            Some(a) if finite3(&a) => Ok(Vector3::from(a)),
+            Some(a) => Err(format!(
+                "{}: {a:?} is not finite",
+                key(&format!("motion.{name}"))
+            )),
+            None => Err(format!(
+                "{}: a `{}` motion needs it",
+                key(&format!("motion.{name}")),
+                m.kind
+            )),
+        }
+    };
+    let motion = match m.kind.as_str() {
+        "fixed" => Motion::Fixed,
+        "translation" => Motion::Translation(need("velocity", m.velocity)?),
+        "rotation" => {
+            let axis = need("axis", m.axis)?;
+            if !(axis.norm() > 0.0) {
+                return Err(format!("{}: is zero", key("motion.axis")));
+            }
+            let w = m.angular_velocity.ok_or_else(|| {
+                format!(
+                    "{}: a `rotation` motion needs it",
+                    key("motion.angular_velocity")
+                )
+            })?;
+            if !w.is_finite() {
+                return Err(format!(
+                    "{}: {w} is not finite",
+                    key("motion.angular_velocity")
+                ));
+            }
+            Motion::Rotation {
+                center: need("center", m.center)?,
+                axis: axis.normalize(),
+                angular_velocity: w,
+            }
+        }
+        "keyframes" => {
+            let (Some(times), Some(offsets)) = (&m.times, &m.offsets) else {
+                return Err(format!(
+                    "{}: a `keyframes` motion needs `times` and `offsets`",
+                    key("motion")
+                ));
+            };
+            if times.len() != offsets.len() || times.is_empty() {
+                return Err(format!(
+                    "{}: {} times for {} offsets (one offset per time, at least one)",
+                    key("motion"),
+                    times.len(),
+                    offsets.len()
+                ));
+            }
+            if !(times[0] > 0.0 && times.iter().all(|t| t.is_finite()))
+                || times.windows(2).any(|w| !(w[1] > w[0]))
+                || !offsets.iter().all(finite3)
+            {
+                return Err(format!(
+                    "{}: times must be finite, positive and increasing, offsets finite",
+                    key("motion")
+                ));
+            }
+            Motion::Keyframes(
+                times
+                    .iter()
+                    .zip(offsets)
+                    .map(|(t, o)| (*t, Vector3::from(*o)))
+                    .collect(),
+            )
+        }
+        other => {
+            return Err(format!(
+                "{}: unknown `{other}` (fixed, translation, rotation, keyframes)",
+                key("motion.kind")
+            ));
+        }
+    };
+    Ok(PinGroup {
+        vertices,
+        motion,
+        release: g.release,
+    })
 }

@@ -419,7 +419,8 @@ fn scenes_are_listed_shown_and_validated() {
             "beam3",
             "beam4",
             "beam5",
-            "anisotropic-drape"
+            "anisotropic-drape",
+            "twist"
         ]
     );
     // `show` prints a scene file that runs as is.
@@ -1674,6 +1675,127 @@ fn plastic_bending_writes_its_rest_angles_and_restarts_from_them() {
             "{name}: {e}"
         );
         assert!(e.contains(needle), "{name}: {e}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn pin_groups_twist_drag_and_release() {
+    let dir = tmp("pin-groups");
+    // The twist: the far end's rotation equals the prescribed angle (π rad/s) at every frame.
+    let out = dir.join("twist");
+    let o = hinge(&[
+        "run",
+        "twist",
+        "--frames",
+        "20",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rest =
+        hinge_core::grid::grid(60, 8, 0.3, 0.04, hinge_core::grid::Diagonal::Alternating).unwrap();
+    // The end column's first and last vertices (x = 0.3, y = 0 and 0.04).
+    let (a, b) = (60, 8 * 61 + 60);
+    assert!(
+        (rest.positions()[a].x - 0.3).abs() < 1e-12 && (rest.positions()[b].y - 0.04).abs() < 1e-12
+    );
+    let mut worst = 0.0f64;
+    for k in 1..=20 {
+        let m = hinge_core::meshio::read_mesh(out.join(format!("frame_{k:04}.obj")))
+            .unwrap()
+            .mesh;
+        let d = m.positions()[b] - m.positions()[a];
+        let angle = d.z.atan2(d.y);
+        let prescribed = std::f64::consts::PI * k as f64 / 60.0;
+        worst = worst.max((angle - prescribed).abs());
+        // The clamped end stays put.
+        assert_eq!(m.positions()[0], rest.positions()[0]);
+    }
+    println!("twist: end rotation vs prescribed over 20 frames: worst difference {worst:.2e} rad");
+    assert!(worst < 1e-12, "{worst}");
+    // A cloth corner dragged along a line follows it; released at t = 0.1 s it falls off the line.
+    let drag = scene_with(
+        &dir,
+        "drag",
+        "drape",
+        "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"keyframes\", times = [0.05, 0.1], offsets = [[0.02, 0.0, 0.0], [0.06, 0.0, 0.0]] }\nrelease = 0.1",
+    );
+    let out = dir.join("drag");
+    let o = hinge(&[
+        "run",
+        drag.to_str().unwrap(),
+        "--resolution",
+        "8",
+        "--frames",
+        "12",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let corner = |k: usize| {
+        hinge_core::meshio::read_mesh(out.join(format!("frame_{k:04}.obj")))
+            .unwrap()
+            .mesh
+            .positions()[0]
+    };
+    let start = corner(0);
+    let dt = 1.0 / 60.0;
+    for k in 1..=6 {
+        let t = k as f64 * dt;
+        let along = if t <= 0.05 {
+            0.02 * t / 0.05
+        } else {
+            0.02 + 0.04 * (t - 0.05) / 0.05
+        };
+        let expected = start + hinge_core::nalgebra::Vector3::new(along, 0.0, 0.0);
+        assert!(
+            (corner(k) - expected).norm() < 1e-12,
+            "frame {k}: {:?} vs {expected:?}",
+            corner(k)
+        );
+    }
+    // Frame 7 starts at 0.1 s: released, the corner falls under gravity.
+    assert!(
+        corner(12).z < corner(6).z - 1e-3,
+        "{:?} {:?}",
+        corner(12),
+        corner(6)
+    );
+    // Bad input: one line naming the group's key.
+    for (extra, needle) in [
+        (
+            "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"spin\" }",
+            "pins.groups[0].motion.kind: unknown `spin`",
+        ),
+        (
+            "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"rotation\", angular_velocity = 1.0 }",
+            "pins.groups[0].motion.axis",
+        ),
+        (
+            "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"keyframes\", times = [0.1, 0.2], offsets = [[0.0, 0.0, 0.0]] }",
+            "2 times for 1 offsets",
+        ),
+        (
+            "[[pins.groups]]\nvertices = [99999]\nmotion = { kind = \"fixed\" }",
+            "vertex 99999 does not exist",
+        ),
+        (
+            "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"fixed\" }\nrelease = -1.0",
+            "pins.groups[0].release",
+        ),
+    ] {
+        let file = scene_with(&dir, "bad", "drape", extra);
+        let o = hinge(&[
+            "run",
+            file.to_str().unwrap(),
+            "--frames",
+            "1",
+            "--no-frames",
+        ]);
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert!(!o.status.success() && e.trim().lines().count() == 1, "{e}");
+        assert!(e.contains(needle), "{needle}: {e}");
     }
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -21,7 +21,7 @@ use hinge_core::energy::{System, SystemEvaluation};
 use hinge_core::nalgebra::Vector3;
 use hinge_energies::pins::Pins;
 
-use crate::newton::{FrameStats, Objective, Reduced, SolverError};
+use crate::newton::{FrameStats, Objective, PinMotion, Reduced, SolverError};
 
 /// Symplectic Euler with a fixed number of substeps per frame.
 pub struct SymplecticEuler {
@@ -118,6 +118,22 @@ impl SymplecticEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
     ) -> Result<FrameStats, SolverError> {
+        self.advance_with(system, x, v, None)
+    }
+
+    /// [`SymplecticEuler::advance`] with moving pinned vertices: after each substep a pinned vertex that
+    /// `motion` writes is at its target for the substep's end, with the velocity that took it there (see
+    /// [`crate::newton::PinMotion`]).
+    ///
+    /// # Errors
+    /// As [`SymplecticEuler::advance`].
+    pub fn advance_with(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+        motion: Option<&dyn PinMotion>,
+    ) -> Result<FrameStats, SolverError> {
         let n = self.masses.len();
         if x.len() != n || v.len() != n {
             return Err(SolverError::Input(format!(
@@ -128,8 +144,15 @@ impl SymplecticEuler {
         }
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let h = self.step_size();
-        for _ in 0..self.substeps {
-            if let Err(e) = self.substep(system, x, v, h) {
+        let mut targets = Vec::new();
+        for k in 0..self.substeps {
+            let t = motion.map(|m| {
+                targets.clear();
+                targets.extend_from_slice(x);
+                m.targets((k + 1) as f64 / self.substeps as f64, &mut targets);
+                targets.as_slice()
+            });
+            if let Err(e) = self.substep(system, x, v, h, t) {
                 x.copy_from_slice(&x0);
                 v.copy_from_slice(&v0);
                 return Err(e);
@@ -148,6 +171,7 @@ impl SymplecticEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
         h: f64,
+        targets: Option<&[Vector3<f64>]>,
     ) -> Result<(), SolverError> {
         let k = self.substeps_done;
         let unstable = |reason: String| SolverError::Unstable {
@@ -194,7 +218,13 @@ impl SymplecticEuler {
         self.prev.copy_from_slice(x);
         for i in 0..x.len() {
             if self.pinned[i] {
-                v[i] = Vector3::zeros();
+                match targets {
+                    Some(t) => {
+                        v[i] = (t[i] - x[i]) / h;
+                        x[i] = t[i];
+                    }
+                    None => v[i] = Vector3::zeros(),
+                }
                 continue;
             }
             let g = Vector3::new(

@@ -300,6 +300,20 @@ impl SolverError {
     }
 }
 
+/// Prescribed positions of pinned vertices over a frame (moving boundaries): see
+/// [`ImplicitEuler::advance_with`]. Closures `Fn(f64, &mut [Vector3<f64>])` implement it.
+pub trait PinMotion {
+    /// Writes the target position of every moving pinned vertex at `fraction` ∈ (0, 1] of the frame into
+    /// `x` (a full position vector; entries of other vertices are to be left alone).
+    fn targets(&self, fraction: f64, x: &mut [Vector3<f64>]);
+}
+
+impl<F: Fn(f64, &mut [Vector3<f64>])> PinMotion for F {
+    fn targets(&self, fraction: f64, x: &mut [Vector3<f64>]) {
+        self(fraction, x);
+    }
+}
+
 /// How [`ImplicitEuler::advance`] splits a frame when a step fails: halve the substep (retrying from the same
 /// state), down to `dt / 2^max_halvings`, and after each success grow it back (doubling, never beyond the
 /// frame's dt).
@@ -888,7 +902,7 @@ impl ImplicitEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
     ) -> Result<NewtonStats, SolverError> {
-        self.step_dt(system, x, v, self.dt)
+        self.step_dt(system, x, v, self.dt, None)
     }
 
     /// One step of size `dt` (see [`ImplicitEuler::step`]).
@@ -898,6 +912,7 @@ impl ImplicitEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
         dt: f64,
+        targets: Option<&[Vector3<f64>]>,
     ) -> Result<NewtonStats, SolverError> {
         let n = system.n_vertices();
         if x.len() != n || v.len() != n {
@@ -910,7 +925,7 @@ impl ImplicitEuler {
         let mut x_hat: Vec<Vector3<f64>> =
             x.iter().zip(v.iter()).map(|(p, w)| p + w * dt).collect();
         for &pv in self.pins.vertices() {
-            x_hat[pv] = x[pv];
+            x_hat[pv] = targets.map_or(x[pv], |t| t[pv]);
         }
         let result = system
             .begin_step(x, dt)
@@ -976,6 +991,24 @@ impl ImplicitEuler {
         v: &mut [Vector3<f64>],
         policy: SubstepPolicy,
     ) -> Result<FrameStats, SolverError> {
+        self.advance_with(system, x, v, policy, None)
+    }
+
+    /// [`ImplicitEuler::advance`] with pinned vertices that move: every (sub)step ends with each pinned
+    /// vertex at `motion`'s target for the substep's end (as a fraction of the frame, in (0, 1]), so the
+    /// pins reach the frame's targets at its end whether or not it took substeps. Pinned vertices the motion
+    /// does not write stay where they are.
+    ///
+    /// # Errors
+    /// As [`ImplicitEuler::advance`].
+    pub fn advance_with(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        v: &mut [Vector3<f64>],
+        policy: SubstepPolicy,
+        motion: Option<&dyn PinMotion>,
+    ) -> Result<FrameStats, SolverError> {
         let levels = policy.max_halvings.min(30);
         let total: u64 = 1 << levels;
         let (x0, v0) = (x.to_vec(), v.to_vec());
@@ -988,7 +1021,13 @@ impl ImplicitEuler {
         while t < total {
             let h = total >> level;
             let dt = self.dt * (h as f64 / total as f64);
-            match self.step_dt(system, x, v, dt) {
+            let mut targets = None;
+            if let Some(m) = motion {
+                let mut t_end = x.to_vec();
+                m.targets((t + h) as f64 / total as f64, &mut t_end);
+                targets = Some(t_end);
+            }
+            match self.step_dt(system, x, v, dt, targets.as_deref()) {
                 Ok(s) => {
                     fs.newton.absorb(&s);
                     fs.substeps += 1;

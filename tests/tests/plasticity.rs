@@ -318,3 +318,65 @@ fn rest_angles_follow_accepted_substeps_only() {
     assert_eq!(sys.evolving_rest_angles().unwrap(), &[0.0]);
     assert_eq!(x, fold(0.6));
 }
+
+#[test]
+fn moving_pins_reach_their_targets_at_every_frame_end_under_substeps() {
+    use hinge_solver::newton::PinMotion;
+    // The hinge's wing x3 is pinned and carried along a line; the gate forces substeps of dt/4 (see
+    // `rest_angles_follow_accepted_substeps_only`). At the end of every frame the pin is exactly at the
+    // frame's target, and within a frame each substep took it to its own end's target.
+    let (rest, fold) = one_hinge();
+    let ended = Arc::new(AtomicUsize::new(0));
+    let dt = 0.01;
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StepGate {
+            n: 4,
+            max_dt: dt / 3.0,
+            dt: 0.0,
+            ended: Arc::clone(&ended),
+        }),
+    ];
+    let mut sys = System::new(4, terms).unwrap();
+    let pins = Pins::new(4, vec![1, 2, 3]).unwrap();
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        dt,
+        lumped_masses(&rest, 1.0),
+        pins,
+        default_solver(),
+        params_tight(),
+    )
+    .unwrap();
+    let start = fold(0.3);
+    let (mut x, mut v) = (start.clone(), vec![Vector3::zeros(); 4]);
+    let velocity = Vector3::new(0.4, 0.1, -0.2);
+    for frame in 0..5 {
+        let t0 = frame as f64 * dt;
+        let motion = |s: f64, y: &mut [Vector3<f64>]| {
+            y[3] = start[3] + velocity * (t0 + s * dt);
+        };
+        let fs = stepper
+            .advance_with(
+                &mut sys,
+                &mut x,
+                &mut v,
+                SubstepPolicy { max_halvings: 4 },
+                Some(&motion as &dyn PinMotion),
+            )
+            .unwrap();
+        assert!(fs.substeps >= 4, "{}", fs.substeps);
+        let target = start[3] + velocity * (t0 + dt);
+        assert_eq!(x[3], target, "frame {frame}");
+        // The other pins stay put; the free vertex x0 moved with the fold.
+        assert_eq!(x[1], start[1]);
+        assert_eq!(x[2], start[2]);
+    }
+    // The pinned vertex's velocity is the one that carried it along the line (v = Δx/h of the last
+    // substep, h = dt/4).
+    assert!((v[3] - velocity).norm() < 1e-9, "{:?}", v[3]);
+}
