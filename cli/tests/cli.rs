@@ -1336,6 +1336,24 @@ fn scene_with(dir: &Path, name: &str, base: &str, extra: &str) -> PathBuf {
     file
 }
 
+/// Runs `hinge run FILE --frames 1 --no-frames` and asserts that it fails with one line on stderr that
+/// contains `needle`.
+fn assert_scene_error(file: &Path, needle: &str) {
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--no-frames",
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(
+        !o.status.success() && e.trim().lines().count() == 1,
+        "{needle}: {e}"
+    );
+    assert!(e.contains(needle), "{needle}: {e}");
+}
+
 /// Mean |θ| of the hinges of `frame` whose rest edge runs along x, and of those along y (a grid's diagonal
 /// hinges left out).
 fn fold_angles_along_x_and_y(rest: &hinge_core::TriMesh, frame: &Path) -> (f64, f64) {
@@ -1438,18 +1456,7 @@ fn anisotropic_bending_through_scenes() {
     assert!(ratios[1] < 0.6 * ratios[0], "{ratios:?}");
     // Bad input: one line naming the key.
     let bad = |name: &str, base: &str, extra: &str, needle: &str| {
-        let file = scene_with(&dir, name, base, extra);
-        let o = hinge(&[
-            "run",
-            file.to_str().unwrap(),
-            "--frames",
-            "1",
-            "--no-frames",
-        ]);
-        let err = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(!o.status.success(), "{name}");
-        assert_eq!(err.trim().lines().count(), 1, "{name}: {err}");
-        assert!(err.contains(needle), "{name}: {err}");
+        assert_scene_error(&scene_with(&dir, name, base, extra), needle);
     };
     bad(
         "negative",
@@ -1574,10 +1581,7 @@ fn explicit_integrator_runs_below_its_limit_and_stops_on_one_line_above_it() {
             .replace("[solver]", &format!("[solver]\n{extra}"));
         let file = dir.join("bad.toml");
         std::fs::write(&file, text).unwrap();
-        let o = hinge(&["run", file.to_str().unwrap(), "--no-frames"]);
-        let e = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(!o.status.success() && e.trim().lines().count() == 1, "{e}");
-        assert!(e.contains(needle), "{e}");
+        assert_scene_error(&file, needle);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -1662,19 +1666,7 @@ fn plastic_bending_writes_its_rest_angles_and_restarts_from_them() {
         };
         let file = dir.join(format!("{name}.toml"));
         std::fs::write(&file, text).unwrap();
-        let o = hinge(&[
-            "run",
-            file.to_str().unwrap(),
-            "--frames",
-            "1",
-            "--no-frames",
-        ]);
-        let e = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(
-            !o.status.success() && e.trim().lines().count() == 1,
-            "{name}: {e}"
-        );
-        assert!(e.contains(needle), "{name}: {e}");
+        assert_scene_error(&file, needle);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -1785,17 +1777,7 @@ fn pin_groups_twist_drag_and_release() {
             "pins.groups[0].release",
         ),
     ] {
-        let file = scene_with(&dir, "bad", "drape", extra);
-        let o = hinge(&[
-            "run",
-            file.to_str().unwrap(),
-            "--frames",
-            "1",
-            "--no-frames",
-        ]);
-        let e = String::from_utf8_lossy(&o.stderr).to_string();
-        assert!(!o.status.success() && e.trim().lines().count() == 1, "{e}");
-        assert!(e.contains(needle), "{needle}: {e}");
+        assert_scene_error(&scene_with(&dir, "bad", "drape", extra), needle);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -292,3 +292,20 @@ pub mod tree {
         }
     }
 }
+
+/// One hinge along the x axis (x1 = origin, x2 = (1, 0, 0)), flat in the xy plane: wings x0 at y > 0 and
+/// x3 at y < 0, triangles (x0, x1, x2) and (x3, x2, x1).
+pub fn one_hinge_positions() -> Vec<nalgebra::Vector3<f64>> {
+    vec![
+        nalgebra::Vector3::new(0.45, 0.8, 0.0),
+        nalgebra::Vector3::new(0.0, 0.0, 0.0),
+        nalgebra::Vector3::new(1.0, 0.0, 0.0),
+        nalgebra::Vector3::new(0.6, -0.9, 0.0),
+    ]
+}
+
+/// The mesh of [`one_hinge_positions`].
+pub fn one_hinge_mesh() -> hinge_core::TriMesh {
+    hinge_core::TriMesh::new(one_hinge_positions(), vec![[0, 1, 2], [3, 2, 1]])
+        .expect("a valid two-triangle mesh")
+}

@@ -35,14 +35,8 @@ fn eval<P: HingePsi>(
 
 /// One hinge along the x axis (x1 = origin, x2 = (1, 0, 0)), flat at rest, bent by lifting x0.
 fn one_hinge() -> (TriMesh, Vec<Vector3<f64>>) {
-    let p = vec![
-        Vector3::new(0.45, 0.8, 0.0),
-        Vector3::new(0.0, 0.0, 0.0),
-        Vector3::new(1.0, 0.0, 0.0),
-        Vector3::new(0.6, -0.9, 0.0),
-    ];
-    let rest = TriMesh::new(p.clone(), vec![[0, 1, 2], [3, 2, 1]]).unwrap();
-    let mut x = p;
+    let rest = one_hinge_mesh();
+    let mut x = one_hinge_positions();
     x[0].z = 0.35;
     x[3].z = 0.1;
     (rest, x)

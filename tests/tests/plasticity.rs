@@ -20,13 +20,8 @@ use nalgebra::Vector3;
 
 /// One hinge along the x axis, flat at rest; `fold(θ)` turns the wing x3 about the edge by θ.
 fn one_hinge() -> (TriMesh, impl Fn(f64) -> Vec<Vector3<f64>>) {
-    let p = vec![
-        Vector3::new(0.45, 0.8, 0.0),
-        Vector3::new(0.0, 0.0, 0.0),
-        Vector3::new(1.0, 0.0, 0.0),
-        Vector3::new(0.6, -0.9, 0.0),
-    ];
-    let rest = TriMesh::new(p.clone(), vec![[0, 1, 2], [3, 2, 1]]).unwrap();
+    let p = one_hinge_positions();
+    let rest = one_hinge_mesh();
     let fold = move |theta: f64| {
         let mut x = p.clone();
         let (s, c) = theta.sin_cos();
