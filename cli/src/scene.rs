@@ -12,7 +12,7 @@ use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
-pub const BUILT_IN: [(&str, &str); 9] = [
+pub const BUILT_IN: [(&str, &str); 10] = [
     ("drape", include_str!("../scenes/drape.toml")),
     ("shell-drop", include_str!("../scenes/shell-drop.toml")),
     ("beam1", include_str!("../scenes/beam1.toml")),
@@ -25,6 +25,7 @@ pub const BUILT_IN: [(&str, &str); 9] = [
         include_str!("../scenes/anisotropic-drape.toml"),
     ),
     ("twist", include_str!("../scenes/twist.toml")),
+    ("crease", include_str!("../scenes/crease.toml")),
 ];
 
 /// The one-line description of a scene's TOML text: the first sentence of its leading comment, without the

@@ -420,7 +420,8 @@ fn scenes_are_listed_shown_and_validated() {
             "beam4",
             "beam5",
             "anisotropic-drape",
-            "twist"
+            "twist",
+            "crease"
         ]
     );
     // `show` prints a scene file that runs as is.
@@ -1779,5 +1780,35 @@ fn pin_groups_twist_drag_and_release() {
     ] {
         assert_scene_error(&scene_with(&dir, "bad", "drape", extra), needle);
     }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_fold_past_yield_leaves_a_crease_after_release() {
+    let dir = tmp("crease");
+    // The crease scene folds the strip's far quarter a quarter turn (π/2 in 0.5 s), releases it and lets
+    // it settle for a second: with plasticity the far end stays raised (a negative drop), without it the
+    // strip springs back nearly flat.
+    let plastic = run_summary(&dir, &["crease"]);
+    let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "crease"]).stdout).replace(
+        "[bending.plasticity]\nyield_angle = 0.02      # rad\nhardening = 0.5\n",
+        "",
+    );
+    assert!(!text.contains("[bending.plasticity]"));
+    let elastic_file = dir.join("elastic.toml");
+    std::fs::write(&elastic_file, text).unwrap();
+    let elastic = run_summary(&dir, &[elastic_file.to_str().unwrap()]);
+    let (dp, de) = (
+        plastic["far_end_drop"].as_f64().unwrap(),
+        elastic["far_end_drop"].as_f64().unwrap(),
+    );
+    let alpha = plastic["max_plastic_angle"].as_f64().unwrap();
+    println!(
+        "crease: far end after release {:.4} m above rest with plasticity (largest plastic angle {alpha:.4} rad), {:.4} m without",
+        -dp, -de
+    );
+    assert!(-dp > 0.03 && alpha > 0.02, "{dp} {alpha}");
+    assert!(de.abs() < 0.01, "{de}");
+    assert!(elastic["max_plastic_angle"].is_null());
     std::fs::remove_dir_all(dir).unwrap();
 }
