@@ -20,7 +20,7 @@ use hinge_energies::spring::MassSpring;
 pub type EnergyEntry = (&'static str, &'static [(&'static str, f64)], &'static str);
 
 /// Energies `hinge eval` knows.
-pub const ENERGIES: [EnergyEntry; 11] = [
+pub const ENERGIES: [EnergyEntry; 12] = [
     (
         "discrete-shells",
         &[("k", 1.0)],
@@ -50,6 +50,11 @@ pub const ENERGIES: [EnergyEntry; 11] = [
         "mass-spring",
         &[("k", 1.0), ("compressive", 1.0)],
         "sum over edges of k/2 (l - L)^2; compressive=0 drops the compressive Hessian term",
+    ),
+    (
+        "bending-springs",
+        &[("k", 1.0)],
+        "springs k/2 (l - L)^2 across each hinge, between its opposite vertices (the lecture's poor bending model)",
     ),
     (
         "quadratic-bending",
@@ -223,6 +228,9 @@ fn build(
                 .map_err(model_err)?
                 .drop_compressive_term(g("compressive") == 0.0),
         ),
+        "bending-springs" => {
+            Box::new(MassSpring::bending_springs(rest, g("k")).map_err(model_err)?)
+        }
         "quadratic-bending" => Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?),
         "membrane" => Box::new(
             StvkMembrane::new(rest, g("young"), g("poisson"), g("thickness")).map_err(model_err)?,

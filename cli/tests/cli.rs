@@ -361,7 +361,7 @@ fn every_listed_energy_evaluates() {
         .lines()
         .map(|l| l.split('\t').next().unwrap().to_string())
         .collect();
-    assert_eq!(names.len(), 11);
+    assert_eq!(names.len(), 12);
     for name in &names {
         let out = dir.join(name);
         let o = hinge(&[

@@ -6,6 +6,11 @@
 //! negative and can make the Hessian indefinite; [`MassSpring::drop_compressive_term`] clamps it to zero
 //! (lecture P23), trading the exact Hessian for a positive semi-definite one; a
 //! [`Request::definite`](hinge_core::bending::Request::definite) evaluation clamps it too.
+//!
+//! [`MassSpring::bending_springs`] puts the same springs across each hinge instead, between its two
+//! opposite vertices x0 and x3: the "bending springs" the lecture shows to be a poor bending model (their
+//! stiffness against a fold depends on the fold's direction relative to the mesh and vanishes to first
+//! order at a flat hinge).
 
 use std::sync::Arc;
 
@@ -20,6 +25,7 @@ use crate::util::{same_size, slot};
 /// Springs on every edge of a mesh.
 #[derive(Debug, Clone)]
 pub struct MassSpring {
+    name: &'static str,
     k: f64,
     edges: Vec<[usize; 2]>,
     rest_length: Vec<f64>,
@@ -44,6 +50,7 @@ impl MassSpring {
         let edges: Vec<[usize; 2]> = topo.edges().iter().map(|e| e.vertices).collect();
         let rest_length = edges.iter().map(|&[i, j]| (x[i] - x[j]).norm()).collect();
         Ok(Self {
+            name: "mass-spring",
             k,
             edges,
             rest_length,
@@ -51,6 +58,28 @@ impl MassSpring {
             n_vertices: rest.n_vertices(),
             slots: Vec::new(),
         })
+    }
+
+    /// Bending springs: springs of stiffness `k` across every hinge, between its opposite vertices x0 and
+    /// x3 (rest lengths from `rest`); named `bending-springs`.
+    ///
+    /// # Errors
+    /// As [`MassSpring::new`].
+    pub fn bending_springs(rest: &TriMesh, k: f64) -> Result<Self, EvalError> {
+        let mut s = Self::new(rest, k)?;
+        let topo = Topology::new(rest.n_vertices(), rest.triangles())?;
+        let x = rest.positions();
+        s.edges = topo
+            .hinges()
+            .iter()
+            .map(|h| {
+                let [a, b] = [h.vertices[0], h.vertices[3]];
+                [a.min(b), a.max(b)]
+            })
+            .collect();
+        s.rest_length = s.edges.iter().map(|&[i, j]| (x[i] - x[j]).norm()).collect();
+        s.name = "bending-springs";
+        Ok(s)
     }
 
     /// Drops the compressive term of the Hessian (lecture P23): positive semi-definite, no longer exact.
@@ -67,7 +96,7 @@ impl MassSpring {
 
 impl Energy for MassSpring {
     fn name(&self) -> &str {
-        "mass-spring"
+        self.name
     }
 
     fn n_vertices(&self) -> usize {

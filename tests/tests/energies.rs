@@ -71,6 +71,11 @@ fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
             true,
         ),
         (
+            "bending-springs",
+            Box::new(MassSpring::bending_springs(rest, 30.0).unwrap()),
+            true,
+        ),
+        (
             "mass-spring-psd",
             Box::new(
                 MassSpring::new(rest, 50.0)
