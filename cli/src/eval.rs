@@ -11,6 +11,7 @@ use hinge_core::psi::runtime::ParamValue;
 use hinge_core::{TriMesh, export};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
 use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::quadratic::QuadraticBending;
@@ -20,7 +21,7 @@ use hinge_energies::spring::MassSpring;
 pub type EnergyEntry = (&'static str, &'static [(&'static str, f64)], &'static str);
 
 /// Energies `hinge eval` knows.
-pub const ENERGIES: [EnergyEntry; 12] = [
+pub const ENERGIES: [EnergyEntry; 13] = [
     (
         "discrete-shells",
         &[("k", 1.0)],
@@ -65,6 +66,11 @@ pub const ENERGIES: [EnergyEntry; 12] = [
         "membrane",
         &[("young", 1000.0), ("poisson", 0.3), ("thickness", 0.001)],
         "St. Venant-Kirchhoff membrane",
+    ),
+    (
+        "corotational-membrane",
+        &[("young", 1000.0), ("poisson", 0.3), ("thickness", 0.001)],
+        "co-rotational (shape matching) membrane k/2 A |F - R|^2, k = young*thickness/(1+poisson), exact Hessian",
     ),
     (
         "gravity",
@@ -234,6 +240,10 @@ fn build(
         "quadratic-bending" => Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?),
         "membrane" => Box::new(
             StvkMembrane::new(rest, g("young"), g("poisson"), g("thickness")).map_err(model_err)?,
+        ),
+        "corotational-membrane" => Box::new(
+            CorotationalMembrane::from_material(rest, g("young"), g("poisson"), g("thickness"))
+                .map_err(model_err)?,
         ),
         "gravity" => Box::new(
             Gravity::new(

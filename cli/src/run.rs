@@ -23,9 +23,11 @@ use hinge_energies::bending::{
     stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::motion::Motion;
 use hinge_energies::pins::Pins;
 use hinge_solver::linear::{
     ChebyshevJacobi, Dense, FaerLu, LinearSolver, PcgJacobi, default_solver,
@@ -163,8 +165,8 @@ pub struct Built {
     pub solver: Box<dyn LinearSolver>,
     /// Newton parameters.
     pub params: NewtonParams,
-    /// The obstacles (for the clearance report and the pictures).
-    pub obstacles: Vec<Obstacle>,
+    /// The obstacles at t = 0 with their motions (for the clearance report and the pictures).
+    pub obstacles: Vec<(Obstacle, Option<Motion>)>,
 }
 
 /// Builds the energies of `scene` on `rest` (with the scene's viscous damping when `damped`).
@@ -209,9 +211,17 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     let masses = lumped_masses(rest, m.density);
     let mut terms: Vec<Box<dyn Energy>> = vec![
         bending,
-        Box::new(
-            StvkMembrane::new(rest, m.young, m.poisson, m.thickness).map_err(|e| e.to_string())?,
-        ),
+        if m.membrane == "corotational" {
+            Box::new(
+                CorotationalMembrane::from_material(rest, m.young, m.poisson, m.thickness)
+                    .map_err(|e| e.to_string())?,
+            )
+        } else {
+            Box::new(
+                StvkMembrane::new(rest, m.young, m.poisson, m.thickness)
+                    .map_err(|e| e.to_string())?,
+            )
+        },
         Box::new(
             Gravity::new(masses.clone(), Vector3::from(scene.gravity))
                 .map_err(|e| e.to_string())?,
@@ -223,7 +233,8 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         ));
     }
     let mut obstacles = Vec::new();
-    for (i, o) in scene.obstacles.iter().enumerate() {
+    let motions = scene.obstacle_motions()?;
+    for ((i, o), motion) in scene.obstacles.iter().enumerate().zip(motions) {
         let obstacle = match (o.center, o.radius, o.point, o.normal) {
             (Some(c), Some(r), _, _) => Obstacle::Sphere {
                 center: Vector3::from(c),
@@ -235,11 +246,16 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             },
             _ => return Err(format!("obstacles[{i}]: incomplete")),
         };
-        terms.push(Box::new(
-            Contact::new(n, obstacle, o.stiffness, o.margin)
-                .map_err(|e| format!("obstacles[{i}]: {e}"))?,
-        ));
-        obstacles.push(obstacle);
+        let mut contact = Contact::new(n, obstacle, o.stiffness, o.margin)
+            .map_err(|e| format!("obstacles[{i}]: {e}"))?;
+        if let Some(m) = &motion {
+            contact = contact
+                .with_motion(m.clone())
+                .map_err(|e| format!("obstacles[{i}].motion: {e}"))?;
+        }
+        // The contact normalises a plane's normal: keep its obstacle.
+        obstacles.push((contact.obstacle(), motion));
+        terms.push(Box::new(contact));
     }
     let pins = Pins::new(n, scene.pinned(rest)?).map_err(|e| format!("pins: {e}"))?;
     let system = System::new(n, terms).map_err(|e| e.to_string())?;
@@ -341,7 +357,7 @@ pub fn equilibrium(
         other_energy_seconds: 0.0,
         linear_solve_seconds: stats.factor_seconds + stats.solve_seconds,
         total_seconds: 0.0,
-        min_clearance: min_clearance(&obstacles, &x),
+        min_clearance: min_clearance(&obstacles_at(&obstacles, 0.0), &x),
         n_vertices: rest.n_vertices(),
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
@@ -359,27 +375,53 @@ pub fn equilibrium(
         let name = format!("static.{}", o.format.extension());
         write_mesh(o.dir.join(name), &x, rest.triangles()).map_err(|e| e.to_string())?;
         if o.pictures {
-            write_pictures(o.dir, &obstacles, &[x.clone()], rest.triangles(), 1.0)?;
+            write_pictures(
+                o.dir,
+                &obstacles,
+                std::slice::from_ref(&x),
+                &[0.0],
+                rest.triangles(),
+                1.0,
+            )?;
         }
     }
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
 }
 
+/// The obstacles where they are at time `t` (moving ones along their motion).
+pub fn obstacles_at(obstacles: &[(Obstacle, Option<Motion>)], t: f64) -> Vec<Obstacle> {
+    obstacles
+        .iter()
+        .map(|(o, m)| m.as_ref().map_or(*o, |m| Contact::moved(o, m, t)))
+        .collect()
+}
+
 /// Writes `animation.png` (the sampled frames, each shown for `seconds` of simulated time, looping),
-/// `final.png` (the last sample) and `obstacles.obj` to `dir`.
+/// `final.png` (the last sample) and `obstacles.obj` (the obstacles at t = 0) to `dir`. `times` are the
+/// samples' times: moving obstacles are drawn where they are then.
 ///
 /// # Errors
 /// A one-line message naming the file.
 pub fn write_pictures(
     dir: &std::path::Path,
-    obstacles: &[Obstacle],
+    obstacles: &[(Obstacle, Option<Motion>)],
     samples: &[Vec<Vector3<f64>>],
+    times: &[f64],
     triangles: &[[usize; 3]],
     seconds: f64,
 ) -> Result<(), String> {
-    // Meshed once, for the pictures and the file.
-    let meshes = crate::view::obstacle_meshes(obstacles, crate::view::scene_box(samples))?;
+    let scene_box = crate::view::scene_box(samples);
+    // Meshed once for fixed obstacles, once per picture for moving ones.
+    let at_rest = crate::view::obstacle_meshes(&obstacles_at(obstacles, 0.0), scene_box)?;
+    let meshes = if obstacles.iter().any(|(_, m)| m.is_some()) {
+        times
+            .iter()
+            .map(|&t| crate::view::obstacle_meshes(&obstacles_at(obstacles, t), scene_box))
+            .collect::<Result<Vec<_>, _>>()?
+    } else {
+        vec![at_rest.clone()]
+    };
     let pictures = crate::view::render(samples, triangles, &meshes);
     let Some(last) = pictures.last() else {
         return Ok(());
@@ -388,7 +430,7 @@ pub fn write_pictures(
     let delay = (seconds * 1e3).round().clamp(40.0, 2000.0) as u16;
     crate::view::write_apng(&dir.join("animation.png"), &pictures, delay)?;
     crate::view::write_png(&dir.join("final.png"), last)?;
-    crate::view::write_obstacles(&dir.join("obstacles.obj"), &meshes)
+    crate::view::write_obstacles(&dir.join("obstacles.obj"), &at_rest)
 }
 
 /// The per-hinge factors of `[bending.anisotropy]` (none when the scene has no such table).
@@ -633,10 +675,12 @@ pub fn simulate_until(
         .div_ceil(crate::view::MAX_ANIMATION_FRAMES)
         .max(1);
     let mut samples: Vec<Vec<Vector3<f64>>> = Vec::new();
+    let mut sample_times: Vec<f64> = Vec::new();
     let mut write_frame = |k: usize, x: &[Vector3<f64>], last: bool| -> Result<(), String> {
         let Some(o) = out else { return Ok(()) };
         if o.pictures && (k.is_multiple_of(every) || last) {
             samples.push(x.to_vec());
+            sample_times.push(k as f64 * scene.dt);
         }
         let name = format!("frame_{k:04}.{}", o.format.extension());
         write_mesh(o.dir.join(name), x, rest.triangles()).map_err(|e| e.to_string())
@@ -667,6 +711,12 @@ pub fn simulate_until(
             active = now;
             stepper = make_stepper(&system, &active, linear_solver(scene))?;
         }
+        // The frame starts at t0 (moving obstacles); set every frame, so the time does not drift.
+        match &mut stepper {
+            Stepper::Implicit(s) => s.set_time(&mut system, t0),
+            Stepper::Explicit(s) => s.set_time(&mut system, t0),
+        }
+        .map_err(|e| format!("frame {}: {e}", frame + 1))?;
         let targets = |fraction: f64, y: &mut [Vector3<f64>]| {
             let time = t0 + fraction * scene.dt;
             for (g, on) in groups.iter().zip(&active) {
@@ -730,11 +780,30 @@ pub fn simulate_until(
             o.dir,
             &obstacles,
             &samples,
+            &sample_times,
             rest.triangles(),
             scene.dt * every as f64,
         )?;
     }
-    summary.min_clearance = min_clearance(&obstacles, &x);
+    let end_time = summary.frames as f64 * scene.dt;
+    if let Some(o) = out
+        && obstacles.iter().any(|(_, m)| m.is_some())
+    {
+        // Moving obstacles beside each frame, for viewers of the frame sequence.
+        let scene_box = crate::view::scene_box(if samples.is_empty() {
+            std::slice::from_ref(&x)
+        } else {
+            &samples
+        });
+        for k in 0..=summary.frames {
+            let meshes = crate::view::obstacle_meshes(
+                &obstacles_at(&obstacles, k as f64 * scene.dt),
+                scene_box,
+            )?;
+            crate::view::write_obstacles(&o.dir.join(format!("obstacles_{k:04}.obj")), &meshes)?;
+        }
+    }
+    summary.min_clearance = min_clearance(&obstacles_at(&obstacles, end_time), &x);
     summary.far_end_drop = far_end_drop(rest, &x);
     summary.max_speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
     summary.total_seconds = start.elapsed().as_secs_f64();
@@ -797,11 +866,21 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     if !args.no_frames {
         let files = if args.statics { 1 } else { scene.frames + 1 };
-        let bytes = (files as u64).saturating_mul(crate::limits::frame_bytes(
+        let mut bytes = (files as u64).saturating_mul(crate::limits::frame_bytes(
             format,
             rest.n_vertices(),
             rest.n_triangles(),
         ));
+        if !args.statics && scene.obstacles.iter().any(|o| o.motion.is_some()) {
+            // `obstacles_k.obj` beside every frame.
+            let (nv, nt) = scene.obstacles.iter().fold((0, 0), |(nv, nt), o| {
+                let (v, t) = crate::view::obstacle_mesh_size(o.kind == "sphere");
+                (nv + v, nt + t)
+            });
+            bytes = bytes.saturating_add(
+                (files as u64).saturating_mul(crate::limits::obj_frame_bytes(nv, nt)),
+            );
+        }
         crate::limits::disk_space(&out, bytes, &format!("{files} frame files"))?;
     }
     install_interrupt_handler();

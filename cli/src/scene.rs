@@ -135,6 +135,14 @@ pub struct Material {
     pub thickness: f64,
     /// Mass per area (kg/m²).
     pub density: f64,
+    /// The membrane: `stvk` (St. Venant–Kirchhoff, the default) or `corotational` (the co-rotational
+    /// membrane, k = Y h / (1 + ν)).
+    #[serde(default = "default_membrane")]
+    pub membrane: String,
+}
+
+fn default_membrane() -> String {
+    "stvk".into()
 }
 
 /// Bending energy and damping.
@@ -292,6 +300,9 @@ pub struct ObstacleSpec {
     /// Contact margin.
     #[serde(default)]
     pub margin: f64,
+    /// A prescribed rigid motion (as `[[pins.groups]]`' `motion`): the sphere's centre, or the plane's point
+    /// and normal, move with it; the obstacle given is its position at t = 0.
+    pub motion: Option<MotionSpec>,
 }
 
 /// Pinned vertices: explicit indices and/or every vertex whose rest x is at most `x_at_most`.
@@ -361,57 +372,7 @@ pub struct PinGroup {
     pub release: Option<f64>,
 }
 
-/// A checked [`MotionSpec`].
-#[derive(Debug, Clone)]
-pub enum Motion {
-    /// Held at rest.
-    Fixed,
-    /// Constant velocity.
-    Translation(Vector3<f64>),
-    /// Rotation about the line through `center` along the unit `axis`.
-    Rotation {
-        /// A point on the axis.
-        center: Vector3<f64>,
-        /// Unit axis.
-        axis: Vector3<f64>,
-        /// rad/s.
-        angular_velocity: f64,
-    },
-    /// Piecewise linear offsets `(time, offset)`.
-    Keyframes(Vec<(f64, Vector3<f64>)>),
-}
-
-impl Motion {
-    /// The target at time `t` of a vertex whose rest position is `p`.
-    pub fn target(&self, p: Vector3<f64>, t: f64) -> Vector3<f64> {
-        match self {
-            Motion::Fixed => p,
-            Motion::Translation(v) => p + v * t,
-            Motion::Rotation {
-                center,
-                axis,
-                angular_velocity,
-            } => {
-                let r = hinge_core::nalgebra::Rotation3::from_axis_angle(
-                    &hinge_core::nalgebra::Unit::new_unchecked(*axis),
-                    angular_velocity * t,
-                );
-                center + r * (p - center)
-            }
-            Motion::Keyframes(k) => {
-                let offset = match k.iter().position(|(tk, _)| *tk > t) {
-                    None => k.last().map_or(Vector3::zeros(), |(_, o)| *o),
-                    Some(0) => k[0].1 * (t / k[0].0),
-                    Some(i) => {
-                        let ((ta, a), (tb, b)) = (k[i - 1], k[i]);
-                        a + (b - a) * ((t - ta) / (tb - ta))
-                    }
-                };
-                p + offset
-            }
-        }
-    }
-}
+pub use hinge_energies::motion::Motion;
 
 /// Newton and linear-solver settings.
 #[derive(Debug, Clone, Deserialize)]
@@ -819,6 +780,13 @@ impl Scene {
                 }
             }
         }
+        self.obstacle_motions()?;
+        if !["stvk", "corotational"].contains(&self.material.membrane.as_str()) {
+            return Err(format!(
+                "material.membrane: unknown `{}` (stvk, corotational)",
+                self.material.membrane
+            ));
+        }
         if ![
             "faer-llt",
             "faer-lu",
@@ -891,6 +859,23 @@ impl Scene {
         pinned.sort_unstable();
         pinned.dedup();
         Ok(pinned)
+    }
+
+    /// The motion of each obstacle (`[[obstacles]] motion`; `None` for a fixed one), checked.
+    ///
+    /// # Errors
+    /// A one-line message naming the obstacle and key.
+    pub fn obstacle_motions(&self) -> Result<Vec<Option<Motion>>, String> {
+        self.obstacles
+            .iter()
+            .enumerate()
+            .map(|(i, o)| {
+                o.motion
+                    .as_ref()
+                    .map(|m| motion(&format!("obstacles[{i}]"), m))
+                    .transpose()
+            })
+            .collect()
     }
 
     /// The pin groups of `[[pins.groups]]`, checked.
@@ -1006,7 +991,6 @@ impl Scene {
 fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, String> {
     let n = rest.n_vertices();
     let key = |k: &str| format!("pins.groups[{i}].{k}");
-    let finite3 = |v: &[f64; 3]| v.iter().all(|c| c.is_finite());
     let mut vertices = g.vertices.clone();
     if let Some(&v) = vertices.iter().find(|&&v| v >= n) {
         return Err(format!(
@@ -1030,7 +1014,18 @@ fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, Str
     {
         return Err(format!("{}: must be non-negative, got {r}", key("release")));
     }
-    let m = &g.motion;
+    let motion = motion(&format!("pins.groups[{i}]"), &g.motion)?;
+    Ok(PinGroup {
+        vertices,
+        motion,
+        release: g.release,
+    })
+}
+
+/// Checks a [`MotionSpec`] whose keys are under `prefix` (`pins.groups[0]`, `obstacles[1]`).
+fn motion(prefix: &str, m: &MotionSpec) -> Result<Motion, String> {
+    let key = |k: &str| format!("{prefix}.{k}");
+    let finite3 = |v: &[f64; 3]| v.iter().all(|c| c.is_finite());
     let need = |name: &str, v: Option<[f64; 3]>| -> Result<Vector3<f64>, String> {
         match v {
             Some(a) if finite3(&a) => Ok(Vector3::from(a)),
@@ -1045,7 +1040,7 @@ fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, Str
             )),
         }
     };
-    let motion = match m.kind.as_str() {
+    Ok(match m.kind.as_str() {
         "fixed" => Motion::Fixed,
         "translation" => Motion::Translation(need("velocity", m.velocity)?),
         "rotation" => {
@@ -1109,10 +1104,5 @@ fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, Str
                 key("motion.kind")
             ));
         }
-    };
-    Ok(PinGroup {
-        vertices,
-        motion,
-        release: g.release,
     })
 }

@@ -45,6 +45,20 @@ pub struct ObstacleMesh {
     pub sphere: bool,
 }
 
+/// The subdivision level of the icosahedra that draw sphere obstacles.
+const SPHERE_LEVEL: usize = 3;
+
+/// The vertex and triangle counts of an obstacle's mesh (a sphere's, or a plane's square).
+pub fn obstacle_mesh_size(sphere: bool) -> (usize, usize) {
+    if sphere {
+        // Each subdivision quadruples the triangles of the icosahedron: V = 10·4^L + 2, T = 20·4^L.
+        let faces = 20 * 4usize.pow(SPHERE_LEVEL as u32);
+        (faces / 2 + 2, faces)
+    } else {
+        (4, 2)
+    }
+}
+
 /// The obstacles as triangle meshes: spheres as subdivided icosahedra, planes as a square of side
 /// `2 · extent` centred under `centre` (the middle of the scene: [`scene_box`]).
 ///
@@ -61,7 +75,7 @@ pub fn obstacle_meshes(
                 center: c,
                 radius: r,
             } => {
-                let m = icosphere(3, r).map_err(|e| format!("sphere obstacle: {e}"))?;
+                let m = icosphere(SPHERE_LEVEL, r).map_err(|e| format!("sphere obstacle: {e}"))?;
                 out.push(ObstacleMesh {
                     positions: m.positions().iter().map(|p| p + c).collect(),
                     triangles: m.triangles().to_vec(),
@@ -216,36 +230,47 @@ impl Canvas {
 }
 
 /// Renders `frames` (positions of the mesh `triangles`) with the obstacle meshes from one camera fitted
-/// to all of them: one RGB picture ([`WIDTH`] × [`HEIGHT`]) per frame.
+/// to all of them: one RGB picture ([`WIDTH`] × [`HEIGHT`]) per frame. `obstacles` holds the obstacles of
+/// each frame (moving obstacles), or one set drawn in every frame.
 pub fn render(
     frames: &[Vec<Vector3<f64>>],
     triangles: &[[usize; 3]],
-    obstacles: &[ObstacleMesh],
+    obstacles: &[Vec<ObstacleMesh>],
 ) -> Vec<Vec<u8>> {
-    let layers: Vec<Layer> = obstacles
+    let layers: Vec<Vec<Layer>> = obstacles
         .iter()
-        .map(|o| Layer {
-            colour: if o.sphere {
-                SPHERE_COLOUR
-            } else {
-                PLANE_COLOUR
-            },
-            positions: &o.positions,
-            triangles: &o.triangles,
+        .map(|set| {
+            set.iter()
+                .map(|o| Layer {
+                    colour: if o.sphere {
+                        SPHERE_COLOUR
+                    } else {
+                        PLANE_COLOUR
+                    },
+                    positions: &o.positions,
+                    triangles: &o.triangles,
+                })
+                .collect()
         })
         .collect();
     // The camera sees every frame and the spheres (planes are unbounded: only their square under the mesh).
     let points = frames.iter().flatten().copied().chain(
         layers
             .iter()
+            .flatten()
             .filter(|l| l.colour == SPHERE_COLOUR)
             .flat_map(|l| l.positions.iter().copied()),
     );
     let cam = Camera::fit(points);
     let mut pictures = Vec::with_capacity(frames.len());
-    for x in frames {
+    for (i, x) in frames.iter().enumerate() {
         let mut canvas = Canvas::new();
-        for l in &layers {
+        let set = if layers.len() == 1 {
+            layers.first()
+        } else {
+            layers.get(i)
+        };
+        for l in set.into_iter().flatten() {
             canvas.draw(&cam, l);
         }
         canvas.draw(
@@ -340,6 +365,27 @@ pub fn write_obstacles(path: &Path, meshes: &[ObstacleMesh]) -> Result<(), Strin
 mod tests {
     use super::*;
 
+    #[test]
+    fn obstacle_mesh_sizes_are_those_drawn() {
+        let obstacles = [
+            Obstacle::Sphere {
+                center: Vector3::zeros(),
+                radius: 0.5,
+            },
+            Obstacle::Plane {
+                point: Vector3::zeros(),
+                normal: Vector3::z(),
+            },
+        ];
+        let meshes = obstacle_meshes(&obstacles, (Vector3::zeros(), 1.0)).unwrap();
+        for (m, sphere) in meshes.iter().zip([true, false]) {
+            assert_eq!(
+                (m.positions.len(), m.triangles.len()),
+                obstacle_mesh_size(sphere)
+            );
+        }
+    }
+
     /// A square of side 2 through `centre`, facing the camera's direction `towards`.
     fn square(centre: Vector3<f64>, towards: Vector3<f64>) -> (Vec<Vector3<f64>>, Vec<[usize; 3]>) {
         let n = towards.normalize();
@@ -371,7 +417,7 @@ mod tests {
             let (x, t) = square(cam.forward * offset, cam.forward);
             let frames = [x];
             let meshes = obstacle_meshes(&sphere, scene_box(&frames)).unwrap();
-            let pictures = render(&frames, &t, &meshes);
+            let pictures = render(&frames, &t, std::slice::from_ref(&meshes));
             let [r, g, b] = centre_pixel(&pictures[0]).map(i32::from);
             if mesh_in_front {
                 assert!(

@@ -361,7 +361,7 @@ fn every_listed_energy_evaluates() {
         .lines()
         .map(|l| l.split('\t').next().unwrap().to_string())
         .collect();
-    assert_eq!(names.len(), 12);
+    assert_eq!(names.len(), 13);
     for name in &names {
         let out = dir.join(name);
         let o = hinge(&[
@@ -1810,5 +1810,153 @@ fn a_fold_past_yield_leaves_a_crease_after_release() {
     assert!(-dp > 0.03 && alpha > 0.02, "{dp} {alpha}");
     assert!(de.abs() < 0.01, "{de}");
     assert!(elastic["max_plastic_angle"].is_null());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// The centroid of an OBJ file's vertices.
+fn centroid(path: &Path) -> hinge_core::nalgebra::Vector3<f64> {
+    let m = hinge_core::meshio::read_mesh(path).unwrap().mesh;
+    m.positions()
+        .iter()
+        .sum::<hinge_core::nalgebra::Vector3<f64>>()
+        / m.n_vertices() as f64
+}
+
+#[test]
+fn moving_obstacles_push_the_cloth_and_are_written_beside_the_frames() {
+    let dir = tmp("moving-obstacles");
+    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
+    // The drape's sphere slides along +x at 0.6 m/s once the cloth lies on it.
+    let motion = "margin = 0.005\nmotion = { kind = \"keyframes\", times = [0.3, 0.8], offsets = [[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]] }\n";
+    assert!(shown.contains("margin = 0.005\n"));
+    let file = dir.join("moving.toml");
+    std::fs::write(&file, shown.replace("margin = 0.005\n", motion)).unwrap();
+    let (frames, dt) = (48, 1.0 / 60.0);
+    let run = |scene: &Path, out: &Path| {
+        let o = hinge(&[
+            "run",
+            scene.to_str().unwrap(),
+            "--resolution",
+            "10",
+            "--frames",
+            &frames.to_string(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_str::<serde_json::Value>(
+            &std::fs::read_to_string(out.join("summary.json")).unwrap(),
+        )
+        .unwrap()
+    };
+    let (moving, fixed) = (dir.join("moving"), dir.join("fixed"));
+    let summary = run(&file, &moving);
+    run(Path::new("drape"), &fixed);
+    // The obstacles beside every frame, where the keyframes put the sphere (its mesh's centroid is its
+    // centre); `obstacles.obj` is the sphere at t = 0.
+    let along = |t: f64| {
+        if t <= 0.3 {
+            0.0
+        } else {
+            0.3 * ((t - 0.3) / 0.5).min(1.0)
+        }
+    };
+    let mut worst = 0.0f64;
+    for k in 0..=frames {
+        let c = centroid(&moving.join(format!("obstacles_{k:04}.obj")));
+        worst = worst
+            .max((c - hinge_core::nalgebra::Vector3::new(along(k as f64 * dt), 0.0, 0.0)).norm());
+    }
+    println!("sphere centre vs keyframes over {frames} frames: {worst:.1e} m");
+    assert!(worst < 1e-12, "{worst}");
+    assert!(centroid(&moving.join("obstacles.obj")).norm() < 1e-12);
+    assert!(!fixed.join("obstacles_0001.obj").exists());
+    // The sphere pushes the cloth along +x; the cloth stays out of the moved sphere.
+    let (cm, cf) = (
+        centroid(&moving.join(format!("frame_{frames:04}.obj"))),
+        centroid(&fixed.join(format!("frame_{frames:04}.obj"))),
+    );
+    println!(
+        "cloth centroid x after {frames} frames: {:.4} m with the moving sphere, {:.4} m without; clearance {}",
+        cm.x, cf.x, summary["min_clearance_to_sphere"]
+    );
+    assert!(cm.x > cf.x + 0.03, "{} {}", cm.x, cf.x);
+    let clearance = summary["min_clearance_to_sphere"].as_f64().unwrap();
+    assert!(clearance > -1e-3, "{clearance}");
+    // The animation draws the sphere where it is: its blue pixels move right between the first and the
+    // last picture.
+    let (_, _, pictures) = decode_apng(&moving.join("animation.png"));
+    let blue_x = |rgb: &[u8]| {
+        let (mut sum, mut count) = (0usize, 0usize);
+        for (i, p) in rgb.chunks(3).enumerate() {
+            let (r, b) = (i32::from(p[0]), i32::from(p[2]));
+            if b > r + 40 {
+                sum += i % 400;
+                count += 1;
+            }
+        }
+        sum as f64 / count.max(1) as f64
+    };
+    let (x0, x1) = (blue_x(&pictures[0]), blue_x(pictures.last().unwrap()));
+    println!("sphere pixels' mean column: {x0:.1} → {x1:.1}");
+    assert!(x1 > x0 + 10.0, "{x0} {x1}");
+    // Bad input: one line naming the obstacle's key.
+    for (from, to, needle) in [
+        (
+            "margin = 0.005\n",
+            "margin = 0.005\nmotion = { kind = \"spin\" }\n",
+            "obstacles[0].motion.kind: unknown `spin`",
+        ),
+        (
+            "margin = 0.005\n",
+            "margin = 0.005\nmotion = { kind = \"translation\" }\n",
+            "obstacles[0].motion.velocity",
+        ),
+        (
+            "density = 0.1",
+            "density = 0.1\nmembrane = \"linear\"",
+            "material.membrane: unknown `linear`",
+        ),
+    ] {
+        let bad = dir.join("bad.toml");
+        std::fs::write(&bad, shown.replace(from, to)).unwrap();
+        assert_scene_error(&bad, needle);
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn the_corotational_membrane_runs_in_scenes() {
+    let dir = tmp("corotational");
+    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
+    let file = dir.join("corot.toml");
+    assert!(shown.contains("density = 0.1"));
+    std::fs::write(
+        &file,
+        shown.replace(
+            "density = 0.1",
+            "density = 0.1\nmembrane = \"corotational\"",
+        ),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--resolution",
+        "10",
+        "--frames",
+        "40",
+        "--no-frames",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    println!("co-rotational drape: {summary}");
+    // The cloth lands on the sphere and stays out of it.
+    let clearance = summary["min_clearance_to_sphere"].as_f64().unwrap();
+    assert!(clearance > -1e-3 && clearance < 0.02, "{clearance}");
     std::fs::remove_dir_all(dir).unwrap();
 }

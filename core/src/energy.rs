@@ -102,6 +102,18 @@ pub trait Energy: Send + Sync {
         Ok(())
     }
 
+    /// Places parts of the energy that move on a prescribed path (a moving obstacle) where they are at
+    /// `time` (s). The time steppers call it with the instant each (sub)step ends at, before solving the step,
+    /// and with the time of the last accepted state when a step fails, so that a failed step leaves the
+    /// energy as it was. Default: nothing.
+    ///
+    /// # Errors
+    /// As the implementation says (a non-finite time); on error the implementation's state is unchanged.
+    fn set_time(&mut self, time: f64) -> Result<(), EvalError> {
+        let _ = time;
+        Ok(())
+    }
+
     /// An accepted (sub)step ended at `x`: update state that follows accepted motion only, such as
     /// plastic rest angles ([`HingeTerm::with_plasticity`]). The steppers never call it for a rejected
     /// attempt. Default: nothing.
@@ -450,6 +462,17 @@ impl System {
     pub fn begin_step(&mut self, x_prev: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
         for t in &mut self.terms {
             t.begin_step(x_prev, dt)?;
+        }
+        Ok(())
+    }
+
+    /// Places every term at `time` (see [`Energy::set_time`]).
+    ///
+    /// # Errors
+    /// The first term's error; terms before it have already moved.
+    pub fn set_time(&mut self, time: f64) -> Result<(), EvalError> {
+        for t in &mut self.terms {
+            t.set_time(time)?;
         }
         Ok(())
     }

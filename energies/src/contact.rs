@@ -9,6 +9,12 @@
 //!
 //! A [`Request::definite`](hinge_core::bending::Request::definite) evaluation drops the `− κ s Hess d` term
 //! (positive semi-definite: `κ ∇d ∇dᵀ`); for the plane that is the exact Hessian.
+//!
+//! **Moving obstacles.** [`Contact::with_motion`] gives the obstacle a rigid [`Motion`]: at time `t` a
+//! sphere's centre is at `motion.target(centre, t)`, a plane passes through `motion.target(point, t)` with
+//! its normal turned by the motion's rotation. [`Energy::set_time`] places it (the time steppers call it with
+//! each (sub)step's end time, so a step's contact is that of the obstacle where the step ends); within an
+//! evaluation the obstacle is fixed, so the derivatives above are unchanged.
 
 use std::sync::Arc;
 
@@ -17,6 +23,8 @@ use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_core::pattern::SymmetricPattern;
+
+use crate::motion::Motion;
 
 /// An analytic obstacle.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,7 +48,10 @@ pub enum Obstacle {
 /// A penalty contact energy against one obstacle.
 #[derive(Debug, Clone)]
 pub struct Contact {
+    /// Where the obstacle is now.
     obstacle: Obstacle,
+    /// Where it is at t = 0, and how it moves.
+    motion: Option<(Obstacle, Motion)>,
     stiffness: f64,
     margin: f64,
     n_vertices: usize,
@@ -91,11 +102,71 @@ impl Contact {
         };
         Ok(Self {
             obstacle,
+            motion: None,
             stiffness,
             margin,
             n_vertices,
             diag: Vec::new(),
         })
+    }
+
+    /// The obstacle moves along `motion` ([`Motion::target`] from its position at t = 0, the one given to
+    /// [`Contact::new`]); [`Energy::set_time`] places it.
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for a motion with non-finite data, a zero rotation axis, or keyframe times
+    /// that are not positive and increasing.
+    pub fn with_motion(mut self, motion: Motion) -> Result<Self, EvalError> {
+        let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
+        let ok = match &motion {
+            Motion::Fixed => true,
+            Motion::Translation(v) => finite(v),
+            Motion::Rotation {
+                center,
+                axis,
+                angular_velocity,
+            } => {
+                finite(center)
+                    && finite(axis)
+                    && (axis.norm() - 1.0).abs() < 1e-12
+                    && angular_velocity.is_finite()
+            }
+            Motion::Keyframes(k) => {
+                !k.is_empty()
+                    && k[0].0 > 0.0
+                    && k.iter().all(|(t, o)| t.is_finite() && finite(o))
+                    && k.windows(2).all(|w| w[1].0 > w[0].0)
+            }
+        };
+        if !ok {
+            return Err(EvalError::Element {
+                element: "contact".into(),
+                message: format!(
+                    "obstacle motion {motion:?}: data must be finite, the axis a unit vector, keyframe times positive and increasing"
+                ),
+            });
+        }
+        self.motion = Some((self.obstacle, motion));
+        Ok(self)
+    }
+
+    /// Where the obstacle is now (after the last [`Energy::set_time`]).
+    pub fn obstacle(&self) -> Obstacle {
+        self.obstacle
+    }
+
+    /// Where an obstacle with `motion` is at time `t`, from `rest` (its position at t = 0).
+    pub fn moved(rest: &Obstacle, motion: &Motion, t: f64) -> Obstacle {
+        match *rest {
+            Obstacle::Sphere { center, radius } => Obstacle::Sphere {
+                center: motion.target(center, t),
+                radius,
+            },
+            Obstacle::Plane { point, normal } => Obstacle::Plane {
+                point: motion.target(point, t),
+                normal: motion.direction(normal, t),
+            },
+        }
     }
 
     /// Signed distance of `p` to the obstacle.
@@ -120,6 +191,20 @@ impl Energy for Contact {
     }
 
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+
+    fn set_time(&mut self, time: f64) -> Result<(), EvalError> {
+        let Some((rest, motion)) = &self.motion else {
+            return Ok(());
+        };
+        if !time.is_finite() {
+            return Err(EvalError::Element {
+                element: "contact".into(),
+                message: format!("time {time} is not finite"),
+            });
+        }
+        self.obstacle = Self::moved(rest, motion, time);
+        Ok(())
+    }
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
         self.diag = crate::util::diagonal_slots(pattern, self.n_vertices)?;

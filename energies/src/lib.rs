@@ -8,7 +8,9 @@
 //!   plate-consistent Eq. 11 / 3);
 //! - [`spring::MassSpring`] on edges, optionally without the compressive Hessian term;
 //! - [`quadratic::QuadraticBending`] (Bergou et al. 2006) with its constant Hessian precomputed at rest;
-//! - [`membrane::StvkMembrane`], the St. Venant–Kirchhoff triangle membrane;
+//! - [`membrane::StvkMembrane`], the St. Venant–Kirchhoff triangle membrane, and
+//!   [`corotational::CorotationalMembrane`], the lecture's co-rotational ("shape matching") membrane with
+//!   its exact Hessian;
 //! - [`gravity::Gravity`] with lumped masses; [`drag::Drag`], mass-proportional damping (air drag);
 //!   [`contact`]: smooth one-sided penalties against a sphere or a plane; [`pins::Pins`], the constrained
 //!   vertices a solver eliminates.
@@ -42,9 +44,11 @@
 
 pub mod bending;
 pub mod contact;
+pub mod corotational;
 pub mod drag;
 pub mod gravity;
 pub mod membrane;
+pub mod motion;
 pub mod pins;
 pub mod quadratic;
 pub mod spring;
@@ -93,5 +97,28 @@ pub(crate) mod util {
                 ),
             })
         }
+    }
+
+    /// Per triangle, the slots of its blocks (0,0), (1,1), (2,2), (0,1), (1,2), (2,0), after checking the
+    /// pattern's size.
+    pub fn triangle_slots(
+        pattern: &SymmetricPattern,
+        n: usize,
+        triangles: &[[usize; 3]],
+    ) -> Result<Vec<[usize; 6]>, EvalError> {
+        same_size(pattern, n)?;
+        triangles
+            .iter()
+            .map(|t| {
+                Ok([
+                    slot(pattern, t[0], t[0])?,
+                    slot(pattern, t[1], t[1])?,
+                    slot(pattern, t[2], t[2])?,
+                    slot(pattern, t[0], t[1])?,
+                    slot(pattern, t[1], t[2])?,
+                    slot(pattern, t[2], t[0])?,
+                ])
+            })
+            .collect()
     }
 }

@@ -117,22 +117,7 @@ impl Energy for StvkMembrane {
     }
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        crate::util::same_size(pattern, self.n_vertices)?;
-        let s = |a, b| crate::util::slot(pattern, a, b);
-        self.slots = self
-            .triangles
-            .iter()
-            .map(|t| {
-                Ok([
-                    s(t[0], t[0])?,
-                    s(t[1], t[1])?,
-                    s(t[2], t[2])?,
-                    s(t[0], t[1])?,
-                    s(t[1], t[2])?,
-                    s(t[2], t[0])?,
-                ])
-            })
-            .collect::<Result<_, EvalError>>()?;
+        self.slots = crate::util::triangle_slots(pattern, self.n_vertices, &self.triangles)?;
         Ok(())
     }
 

@@ -38,6 +38,8 @@ pub struct SymplecticEuler {
     /// substep.
     bound: Option<f64>,
     substeps_done: usize,
+    /// The time of the current state (s).
+    time: f64,
 }
 
 impl std::fmt::Debug for SymplecticEuler {
@@ -99,7 +101,28 @@ impl SymplecticEuler {
             prev: Vec::new(),
             bound: None,
             substeps_done: 0,
+            time: 0.0,
         })
+    }
+
+    /// The time (s) of the current state: 0 for a new stepper, advanced by `dt` per frame.
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Sets the time of the current state and places the system there ([`System::set_time`]).
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] for a non-finite time or the system's error (nothing changed then).
+    pub fn set_time(&mut self, system: &mut System, time: f64) -> Result<(), SolverError> {
+        if !time.is_finite() {
+            return Err(SolverError::Input(format!("time {time} is not finite")));
+        }
+        system
+            .set_time(time)
+            .map_err(|e| SolverError::Input(format!("placing the system at time {time}: {e}")))?;
+        self.time = time;
+        Ok(())
     }
 
     /// The explicit step `dt / substeps`.
@@ -123,7 +146,9 @@ impl SymplecticEuler {
 
     /// [`SymplecticEuler::advance`] with moving pinned vertices: after each substep a pinned vertex that
     /// `motion` writes is at its target for the substep's end, with the velocity that took it there (see
-    /// [`crate::newton::PinMotion`]).
+    /// [`crate::newton::PinMotion`]). The forces of a substep are those with the system's moving parts
+    /// (obstacles) at the substep's start time ([`System::set_time`]: the explicit step evaluates the
+    /// forces once, at its start); a failed frame leaves the time and the system at the frame's start.
     ///
     /// # Errors
     /// As [`SymplecticEuler::advance`].
@@ -144,8 +169,18 @@ impl SymplecticEuler {
         }
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let h = self.step_size();
+        let time0 = self.time;
         let mut targets = Vec::new();
         for k in 0..self.substeps {
+            let t_start = time0 + self.dt * (k as f64 / self.substeps as f64);
+            if let Err(e) = system.set_time(t_start) {
+                x.copy_from_slice(&x0);
+                v.copy_from_slice(&v0);
+                let _ = system.set_time(time0);
+                return Err(SolverError::Input(format!(
+                    "placing the system at time {t_start}: {e}"
+                )));
+            }
             let t = motion.map(|m| {
                 targets.clear();
                 targets.extend_from_slice(x);
@@ -155,9 +190,13 @@ impl SymplecticEuler {
             if let Err(e) = self.substep(system, x, v, h, t) {
                 x.copy_from_slice(&x0);
                 v.copy_from_slice(&v0);
+                // The time is finite (it was placed at before), so placing succeeds.
+                let _ = system.set_time(time0);
                 return Err(e);
             }
         }
+        self.time = time0 + self.dt;
+        let _ = system.set_time(self.time);
         Ok(FrameStats {
             substeps: self.substeps,
             smallest_fraction: 1.0 / self.substeps as f64,

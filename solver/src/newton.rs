@@ -836,6 +836,8 @@ pub struct ImplicitEuler {
     /// The start positions and step of the last accepted step: the system's step state (damping's θ_prev,
     /// drag's previous positions) is set back to them when an attempt fails.
     committed: Option<(Vec<Vector3<f64>>, f64)>,
+    /// The time of the current state (s): the system's moving parts are placed at it between steps.
+    time: f64,
 }
 
 impl std::fmt::Debug for ImplicitEuler {
@@ -874,7 +876,32 @@ impl ImplicitEuler {
             newton,
             pins,
             committed: None,
+            time: 0.0,
         })
+    }
+
+    /// The time (s) of the state the stepper last accepted (0 for a new stepper; see
+    /// [`ImplicitEuler::set_time`]). Every step is solved with the system placed at the step's end time
+    /// ([`System::set_time`]: moving obstacles).
+    pub fn time(&self) -> f64 {
+        self.time
+    }
+
+    /// Sets the time of the current state (a restart, or a stepper built mid-run) and places the system
+    /// there.
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] for a non-finite time; the system's error (nothing changed then).
+    pub fn set_time(&mut self, system: &mut System, time: f64) -> Result<(), SolverError> {
+        if !time.is_finite() {
+            return Err(SolverError::Input(format!("time {time} is not finite")));
+        }
+        system.set_time(time).map_err(|source| SolverError::Eval {
+            source,
+            stats: Box::default(),
+        })?;
+        self.time = time;
+        Ok(())
     }
 
     /// The Newton solver (for statistics).
@@ -902,16 +929,17 @@ impl ImplicitEuler {
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
     ) -> Result<NewtonStats, SolverError> {
-        self.step_dt(system, x, v, self.dt, None)
+        self.step_dt(system, x, v, self.dt, self.time + self.dt, None)
     }
 
-    /// One step of size `dt` (see [`ImplicitEuler::step`]).
+    /// One step of size `dt` ending at time `t_end` (see [`ImplicitEuler::step`]).
     fn step_dt(
         &mut self,
         system: &mut System,
         x: &mut [Vector3<f64>],
         v: &mut [Vector3<f64>],
         dt: f64,
+        t_end: f64,
         targets: Option<&[Vector3<f64>]>,
     ) -> Result<NewtonStats, SolverError> {
         let n = system.n_vertices();
@@ -928,7 +956,8 @@ impl ImplicitEuler {
             x_hat[pv] = targets.map_or(x[pv], |t| t[pv]);
         }
         let result = system
-            .begin_step(x, dt)
+            .set_time(t_end)
+            .and_then(|()| system.begin_step(x, dt))
             .map_err(|source| SolverError::Eval {
                 source,
                 stats: Box::default(),
@@ -954,6 +983,7 @@ impl ImplicitEuler {
         match result {
             Ok((next, stats)) => {
                 self.committed = Some((x.to_vec(), dt));
+                self.time = t_end;
                 for i in 0..n {
                     v[i] = (next[i] - x[i]) / dt;
                     x[i] = next[i];
@@ -967,12 +997,15 @@ impl ImplicitEuler {
         }
     }
 
-    /// Sets the system's step state back to the last accepted step's.
+    /// Sets the system's step state back to the last accepted step's, and its moving parts to the current
+    /// time.
     fn restore_step_state(&self, system: &mut System) {
         if let Some((xp, dtp)) = &self.committed {
             // The same call succeeded when that step was accepted, on the same positions.
             let _ = system.begin_step(xp, *dtp);
         }
+        // The time is finite (set by `set_time` or by an accepted step), so placing succeeds.
+        let _ = system.set_time(self.time);
     }
 
     /// Advances by one frame of [`ImplicitEuler::dt`], splitting it into substeps when a step fails (see
@@ -980,7 +1013,10 @@ impl ImplicitEuler {
     /// accepted one lets the next grow back (doubling, aligned so that the substeps tile the frame
     /// exactly). Step state is committed per accepted substep only. Below the floor the frame fails: `x` and
     /// `v` are then those of the frame's start, and so is the system's step state (if no step was ever
-    /// accepted, it stays as set for the last attempt's start, which is what a retry sets again).
+    /// accepted, it stays as set for the last attempt's start, which is what a retry sets again). Every
+    /// substep is solved with the system's moving parts at the substep's end time ([`System::set_time`]);
+    /// a failed frame leaves [`ImplicitEuler::time`] and the system at the frame's start, an accepted one
+    /// advances the time by `dt`.
     ///
     /// # Errors
     /// The last attempt's [`SolverError`] when a substep of `dt / 2^max_halvings` fails too.
@@ -1013,6 +1049,7 @@ impl ImplicitEuler {
         let total: u64 = 1 << levels;
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let committed0 = self.committed.clone();
+        let time0 = self.time;
         let mut fs = FrameStats {
             smallest_fraction: 1.0,
             ..FrameStats::default()
@@ -1027,7 +1064,8 @@ impl ImplicitEuler {
                 m.targets((t + h) as f64 / total as f64, &mut t_end);
                 targets = Some(t_end);
             }
-            match self.step_dt(system, x, v, dt, targets.as_deref()) {
+            let t_end = time0 + self.dt * ((t + h) as f64 / total as f64);
+            match self.step_dt(system, x, v, dt, t_end, targets.as_deref()) {
                 Ok(s) => {
                     fs.newton.absorb(&s);
                     fs.substeps += 1;
@@ -1046,6 +1084,7 @@ impl ImplicitEuler {
                         x.copy_from_slice(&x0);
                         v.copy_from_slice(&v0);
                         self.committed = committed0;
+                        self.time = time0;
                         self.restore_step_state(system);
                         return Err(e);
                     }

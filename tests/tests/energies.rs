@@ -13,6 +13,7 @@ use hinge_energies::bending::{
     stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::quadratic::QuadraticBending;
@@ -92,6 +93,11 @@ fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
         (
             "membrane",
             Box::new(StvkMembrane::new(rest, 1000.0, 0.3, 0.01).unwrap()),
+            true,
+        ),
+        (
+            "corotational-membrane",
+            Box::new(CorotationalMembrane::new(rest, 40.0).unwrap()),
             true,
         ),
         (

@@ -1,14 +1,15 @@
 //! Membrane locking (lecture, Euler's formula): a triangle mesh has #edges = 3#vertices − 3 − #boundary
 //! edges, so stiff in-plane springs nearly fix every edge length and leave a sheet few isometric motions.
 //! With no bending energy at all, a sheet folds freely along a line of mesh edges (an exact isometry) but
-//! resists a fold across its triangles, which must stretch edges. Shown for mass springs and for the StVK
-//! membrane; the figures are printed.
+//! resists a fold across its triangles, which must stretch edges. Shown for mass springs, the StVK
+//! membrane and the co-rotational membrane; the figures are printed.
 
 use hinge_core::TriMesh;
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Energy, System};
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::{Rotation3, Unit, Vector3};
+use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::pins::Pins;
 use hinge_energies::spring::MassSpring;
@@ -85,6 +86,13 @@ fn in_plane_stiffness_locks_folds_across_triangles_but_not_along_edges() {
             "StVK membrane",
             Box::new(|r: &TriMesh| {
                 Box::new(StvkMembrane::new(r, 1e6, 0.3, 1e-3).unwrap()) as Box<dyn Energy>
+            }),
+        ),
+        (
+            "co-rotational membrane",
+            Box::new(|r: &TriMesh| {
+                Box::new(CorotationalMembrane::from_material(r, 1e6, 0.3, 1e-3).unwrap())
+                    as Box<dyn Energy>
             }),
         ),
     ] {
