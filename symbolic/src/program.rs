@@ -137,6 +137,74 @@ pub enum Op {
     Atan2,
     /// `if a cmp b { c } else { d }`
     Select(Cmp),
+    // Two binary operations in one instruction (a superinstruction: one dispatch instead of two), made by
+    // `fuse` where the first result's only use is the second. The same operations on the same operands, in
+    // the same order: the result is bitwise that of the two instructions. `L`: the first result is the left
+    // operand of the second, `R`: the right one.
+    /// `(a + b) + c`
+    AddAddL,
+    /// `c + (a + b)`
+    AddAddR,
+    /// `(a + b) - c`
+    AddSubL,
+    /// `c - (a + b)`
+    AddSubR,
+    /// `(a + b) * c`
+    AddMulL,
+    /// `c * (a + b)`
+    AddMulR,
+    /// `(a + b) / c`
+    AddDivL,
+    /// `c / (a + b)`
+    AddDivR,
+    /// `(a - b) + c`
+    SubAddL,
+    /// `c + (a - b)`
+    SubAddR,
+    /// `(a - b) - c`
+    SubSubL,
+    /// `c - (a - b)`
+    SubSubR,
+    /// `(a - b) * c`
+    SubMulL,
+    /// `c * (a - b)`
+    SubMulR,
+    /// `(a - b) / c`
+    SubDivL,
+    /// `c / (a - b)`
+    SubDivR,
+    /// `(a * b) + c`
+    MulAddL,
+    /// `c + (a * b)`
+    MulAddR,
+    /// `(a * b) - c`
+    MulSubL,
+    /// `c - (a * b)`
+    MulSubR,
+    /// `(a * b) * c`
+    MulMulL,
+    /// `c * (a * b)`
+    MulMulR,
+    /// `(a * b) / c`
+    MulDivL,
+    /// `c / (a * b)`
+    MulDivR,
+    /// `(a / b) + c`
+    DivAddL,
+    /// `c + (a / b)`
+    DivAddR,
+    /// `(a / b) - c`
+    DivSubL,
+    /// `c - (a / b)`
+    DivSubR,
+    /// `(a / b) * c`
+    DivMulL,
+    /// `c * (a / b)`
+    DivMulR,
+    /// `(a / b) / c`
+    DivDivL,
+    /// `c / (a / b)`
+    DivDivR,
 }
 
 /// One instruction: `r[dst] = op(r[args[0]], …)`.
@@ -218,6 +286,38 @@ macro_rules! exec_loop {
                 Op::Powf => $r[at(a)].powf($r[at(b)]),
                 Op::Call(f) => $r[at(a)].func(f),
                 Op::Atan2 => $r[at(a)].atan2($r[at(b)]),
+                Op::AddAddL => ($r[at(a)] + $r[at(b)]) + $r[at(c)],
+                Op::AddAddR => $r[at(c)] + ($r[at(a)] + $r[at(b)]),
+                Op::AddSubL => ($r[at(a)] + $r[at(b)]) - $r[at(c)],
+                Op::AddSubR => $r[at(c)] - ($r[at(a)] + $r[at(b)]),
+                Op::AddMulL => ($r[at(a)] + $r[at(b)]) * $r[at(c)],
+                Op::AddMulR => $r[at(c)] * ($r[at(a)] + $r[at(b)]),
+                Op::AddDivL => ($r[at(a)] + $r[at(b)]) / $r[at(c)],
+                Op::AddDivR => $r[at(c)] / ($r[at(a)] + $r[at(b)]),
+                Op::SubAddL => ($r[at(a)] - $r[at(b)]) + $r[at(c)],
+                Op::SubAddR => $r[at(c)] + ($r[at(a)] - $r[at(b)]),
+                Op::SubSubL => ($r[at(a)] - $r[at(b)]) - $r[at(c)],
+                Op::SubSubR => $r[at(c)] - ($r[at(a)] - $r[at(b)]),
+                Op::SubMulL => ($r[at(a)] - $r[at(b)]) * $r[at(c)],
+                Op::SubMulR => $r[at(c)] * ($r[at(a)] - $r[at(b)]),
+                Op::SubDivL => ($r[at(a)] - $r[at(b)]) / $r[at(c)],
+                Op::SubDivR => $r[at(c)] / ($r[at(a)] - $r[at(b)]),
+                Op::MulAddL => ($r[at(a)] * $r[at(b)]) + $r[at(c)],
+                Op::MulAddR => $r[at(c)] + ($r[at(a)] * $r[at(b)]),
+                Op::MulSubL => ($r[at(a)] * $r[at(b)]) - $r[at(c)],
+                Op::MulSubR => $r[at(c)] - ($r[at(a)] * $r[at(b)]),
+                Op::MulMulL => ($r[at(a)] * $r[at(b)]) * $r[at(c)],
+                Op::MulMulR => $r[at(c)] * ($r[at(a)] * $r[at(b)]),
+                Op::MulDivL => ($r[at(a)] * $r[at(b)]) / $r[at(c)],
+                Op::MulDivR => $r[at(c)] / ($r[at(a)] * $r[at(b)]),
+                Op::DivAddL => ($r[at(a)] / $r[at(b)]) + $r[at(c)],
+                Op::DivAddR => $r[at(c)] + ($r[at(a)] / $r[at(b)]),
+                Op::DivSubL => ($r[at(a)] / $r[at(b)]) - $r[at(c)],
+                Op::DivSubR => $r[at(c)] - ($r[at(a)] / $r[at(b)]),
+                Op::DivMulL => ($r[at(a)] / $r[at(b)]) * $r[at(c)],
+                Op::DivMulR => $r[at(c)] * ($r[at(a)] / $r[at(b)]),
+                Op::DivDivL => ($r[at(a)] / $r[at(b)]) / $r[at(c)],
+                Op::DivDivR => $r[at(c)] / ($r[at(a)] / $r[at(b)]),
                 Op::Select(cmp) => {
                     if cmp.holds($r[at(a)].re(), $r[at(b)].re()) {
                         $r[at(c)]
@@ -353,6 +453,7 @@ impl Program {
             .iter()
             .map(|o| reg.get(o).copied())
             .collect::<Option<Vec<u16>>>()?;
+        let code = fuse(code, &outputs);
         if n_regs > MAX_REGISTERS {
             return None;
         }
@@ -435,7 +536,7 @@ impl Program {
         // bounds checks without `unsafe`.
         exec_loop!(&self.code, r, R - 1);
         for (o, &k) in out.iter_mut().zip(&self.outputs) {
-            *o = r[usize::from(k)];
+            *o = r[usize::from(k) & (R - 1)];
         }
     }
 
@@ -459,6 +560,136 @@ impl Program {
             *o = r[usize::from(k)];
         }
     }
+}
+
+/// The four binary operations that [`fuse`] combines.
+#[derive(Clone, Copy, PartialEq)]
+enum Bin {
+    Add,
+    Sub,
+    Mul,
+    Div,
+}
+
+fn bin_of(op: Op) -> Option<Bin> {
+    match op {
+        Op::Add => Some(Bin::Add),
+        Op::Sub => Some(Bin::Sub),
+        Op::Mul | Op::Square => Some(Bin::Mul),
+        Op::Div => Some(Bin::Div),
+        _ => None,
+    }
+}
+
+/// The fused instruction of `first` then `second` (`left`: the first result is the second's left operand).
+fn fused_op(first: Bin, second: Bin, left: bool) -> Op {
+    match (first, second, left) {
+        (Bin::Add, Bin::Add, true) => Op::AddAddL,
+        (Bin::Add, Bin::Add, false) => Op::AddAddR,
+        (Bin::Add, Bin::Sub, true) => Op::AddSubL,
+        (Bin::Add, Bin::Sub, false) => Op::AddSubR,
+        (Bin::Add, Bin::Mul, true) => Op::AddMulL,
+        (Bin::Add, Bin::Mul, false) => Op::AddMulR,
+        (Bin::Add, Bin::Div, true) => Op::AddDivL,
+        (Bin::Add, Bin::Div, false) => Op::AddDivR,
+        (Bin::Sub, Bin::Add, true) => Op::SubAddL,
+        (Bin::Sub, Bin::Add, false) => Op::SubAddR,
+        (Bin::Sub, Bin::Sub, true) => Op::SubSubL,
+        (Bin::Sub, Bin::Sub, false) => Op::SubSubR,
+        (Bin::Sub, Bin::Mul, true) => Op::SubMulL,
+        (Bin::Sub, Bin::Mul, false) => Op::SubMulR,
+        (Bin::Sub, Bin::Div, true) => Op::SubDivL,
+        (Bin::Sub, Bin::Div, false) => Op::SubDivR,
+        (Bin::Mul, Bin::Add, true) => Op::MulAddL,
+        (Bin::Mul, Bin::Add, false) => Op::MulAddR,
+        (Bin::Mul, Bin::Sub, true) => Op::MulSubL,
+        (Bin::Mul, Bin::Sub, false) => Op::MulSubR,
+        (Bin::Mul, Bin::Mul, true) => Op::MulMulL,
+        (Bin::Mul, Bin::Mul, false) => Op::MulMulR,
+        (Bin::Mul, Bin::Div, true) => Op::MulDivL,
+        (Bin::Mul, Bin::Div, false) => Op::MulDivR,
+        (Bin::Div, Bin::Add, true) => Op::DivAddL,
+        (Bin::Div, Bin::Add, false) => Op::DivAddR,
+        (Bin::Div, Bin::Sub, true) => Op::DivSubL,
+        (Bin::Div, Bin::Sub, false) => Op::DivSubR,
+        (Bin::Div, Bin::Mul, true) => Op::DivMulL,
+        (Bin::Div, Bin::Mul, false) => Op::DivMulR,
+        (Bin::Div, Bin::Div, true) => Op::DivDivL,
+        (Bin::Div, Bin::Div, false) => Op::DivDivR,
+    }
+}
+
+/// Whether register `reg` is read after instruction `j` before being overwritten (or is an output), where
+/// `j` itself does not count as a reader.
+fn read_after(code: &[Option<Instr>], j: usize, reg: u16, outputs: &[u16]) -> bool {
+    if code[j].is_some_and(|ins| ins.dst == reg) {
+        return false;
+    }
+    for ins in code[j + 1..].iter().flatten() {
+        if operand_registers(ins).contains(&reg) {
+            return true;
+        }
+        if ins.dst == reg {
+            return false;
+        }
+    }
+    outputs.contains(&reg)
+}
+
+/// The registers an instruction reads.
+fn operand_registers(ins: &Instr) -> &[u16] {
+    let n = match ins.op {
+        Op::Neg | Op::Powi(_) | Op::Call(_) => 1,
+        Op::Select(_) => 4,
+        op if bin_of(op).is_some() || matches!(op, Op::Powf | Op::Atan2) => 2,
+        // Fused instructions read three.
+        _ => 3,
+    };
+    &ins.args[..n]
+}
+
+/// Merges each binary instruction into the binary instruction that reads its result (once, as one of its
+/// two operands) when nothing else reads that result: the first instruction moves down to the second
+/// (the instructions between neither read its result's register nor write any register it touches, so
+/// moving it changes no value) and the two become one fused instruction (see [`Op`]), which writes only the
+/// second result.
+fn fuse(code: Vec<Instr>, outputs: &[u16]) -> Vec<Instr> {
+    let mut slots: Vec<Option<Instr>> = code.into_iter().map(Some).collect();
+    for i in 0..slots.len() {
+        let Some(ins) = slots[i] else { continue };
+        let Some(first) = bin_of(ins.op) else {
+            continue;
+        };
+        let (t, [a, b, ..]) = (ins.dst, ins.args);
+        for j in i + 1..slots.len() {
+            let Some(next) = slots[j] else { continue };
+            if !operand_registers(&next).contains(&t) {
+                if [t, a, b].contains(&next.dst) {
+                    break;
+                }
+                continue;
+            }
+            let [x, y, ..] = next.args;
+            // Exactly one operand of `next` is the first result (not `t * t`).
+            let side = match (x == t, y == t) {
+                (true, false) => Some((true, y)),
+                (false, true) => Some((false, x)),
+                _ => None,
+            };
+            if let (Some(second), Some((left, other))) = (bin_of(next.op), side)
+                && !read_after(&slots, j, t, outputs)
+            {
+                slots[j] = Some(Instr {
+                    op: fused_op(first, second, left),
+                    dst: next.dst,
+                    args: [a, b, other, 0],
+                });
+                slots[i] = None;
+            }
+            break;
+        }
+    }
+    slots.into_iter().flatten().collect()
 }
 
 /// The register-file size a program of `n` registers runs with (a power of two).

@@ -58,3 +58,49 @@ fn parse_errors_carry_columns() {
     assert!(e.show_supported);
     assert!(e.to_string().contains("did you mean `sin`"), "{e}");
 }
+
+#[test]
+fn fused_instructions_compute_both_operations_bitwise() {
+    // Every pair of binary operations, with the first result on either side of the second: the program
+    // fuses them (fewer instructions than operations) and computes exactly the two f64 operations.
+    let ops: [(&str, fn(f64, f64) -> f64); 4] = [
+        ("+", |x, y| x + y),
+        ("-", |x, y| x - y),
+        ("*", |x, y| x * y),
+        ("/", |x, y| x / y),
+    ];
+    let mut fused = 0;
+    for (o1, f1) in ops {
+        for (o2, f2) in ops {
+            for left in [true, false] {
+                // θ-dependent operands, so nothing is hoisted or folded: (θ o1 u) o2 v with u, v of θ.
+                let inner = format!("(theta {o1} theta.sin())");
+                let expr = if left {
+                    format!("{inner} {o2} theta.cos()")
+                } else {
+                    format!("theta.cos() {o2} {inner}")
+                };
+                let t = tape(&expr, &[]);
+                let p = [0.0; 4];
+                for theta in [-2.3, -0.4, 0.3, 1.7] {
+                    let mut out = [0.0];
+                    t.value.run_theta(theta, &p, &mut out);
+                    let a = f1(theta, theta.sin());
+                    let want = if left {
+                        f2(a, theta.cos())
+                    } else {
+                        f2(theta.cos(), a)
+                    };
+                    assert_eq!(out[0].to_bits(), want.to_bits(), "{expr} at {theta}");
+                }
+                // sin, cos, and one fused instruction for the two operations.
+                if t.value.len() == 3 {
+                    fused += 1;
+                } else {
+                    println!("{expr}: {:?}", t.value);
+                }
+            }
+        }
+    }
+    assert_eq!(fused, 32, "every pair fuses");
+}

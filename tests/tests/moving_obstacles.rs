@@ -188,10 +188,7 @@ impl Energy for Clock {
 
 /// A small sheet on a rising plane (with gravity) plus a [`Clock`]; the sheet's rest mesh is irregular and
 /// renumbered.
-fn sheet_on_a_rising_plane(
-    max_dt: f64,
-    speed: f64,
-) -> (TriMesh, System, Times, Times) {
+fn sheet_on_a_rising_plane(max_dt: f64, speed: f64) -> (TriMesh, System, Times, Times) {
     let sheet = irregular_sheet(5, 5, 4).unwrap();
     let rest = renumber(&sheet, &random_permutation(sheet.n_vertices(), 9)).unwrap();
     let n = rest.n_vertices();
