@@ -37,7 +37,7 @@ use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
-use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
+use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, TriMesh};
 
@@ -47,7 +47,7 @@ pub struct CorotationalMembrane {
     stiffness: f64,
     triangles: Vec<[usize; 3]>,
     /// Per triangle: b_0, b_1, b_2 and the rest area.
-    rest: Vec<([Vector2<f64>; 3], f64)>,
+    rest: Vec<crate::util::RestShape>,
     n_vertices: usize,
     /// Per triangle: slots of (0,0), (1,1), (2,2), (0,1), (1,2), (2,0).
     slots: Vec<[usize; 6]>,
@@ -123,29 +123,7 @@ impl CorotationalMembrane {
                 message: format!("stiffness {stiffness} must be finite and non-negative"),
             });
         }
-        let x = rest.positions();
-        let mut data = Vec::with_capacity(rest.n_triangles());
-        for (ti, t) in rest.triangles().iter().enumerate() {
-            let (e1, e2) = (x[t[1]] - x[t[0]], x[t[2]] - x[t[0]]);
-            let n = e1.cross(&e2);
-            let area = 0.5 * n.norm();
-            let t1 = e1.normalize();
-            let t2 = n.normalize().cross(&t1);
-            let dm = Matrix2::new(e1.dot(&t1), e2.dot(&t1), 0.0, e2.dot(&t2));
-            let Some(dm_inv_t) = dm.try_inverse().map(|m| m.transpose()) else {
-                return Err(degenerate(ti, t, "has no area at rest"));
-            };
-            if !(area > 0.0 && dm_inv_t.iter().all(|v| v.is_finite())) {
-                return Err(degenerate(ti, t, "has no area at rest"));
-            }
-            let b = [
-                Vector2::new(-1.0, -1.0),
-                Vector2::new(1.0, 0.0),
-                Vector2::new(0.0, 1.0),
-            ]
-            .map(|g| dm_inv_t * g);
-            data.push((b, area));
-        }
+        let data = crate::util::triangle_rest_shapes(rest, "corotational-membrane")?;
         Ok(Self {
             stiffness,
             triangles: rest.triangles().to_vec(),
@@ -165,14 +143,7 @@ impl CorotationalMembrane {
         poisson: f64,
         thickness: f64,
     ) -> Result<Self, EvalError> {
-        if !(young >= 0.0 && poisson > -1.0 && poisson < 0.5 && thickness > 0.0) {
-            return Err(EvalError::Element {
-                element: "corotational-membrane".into(),
-                message: format!(
-                    "Young's modulus {young}, Poisson ratio {poisson}, thickness {thickness} out of range"
-                ),
-            });
-        }
+        crate::util::check_material("corotational-membrane", young, poisson, thickness)?;
         Self::new(rest, young * thickness / (1.0 + poisson))
     }
 
@@ -199,9 +170,7 @@ impl Energy for CorotationalMembrane {
     }
 
     fn couplings(&self, out: &mut Vec<(usize, usize)>) {
-        for t in &self.triangles {
-            out.extend([(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
-        }
+        crate::util::triangle_couplings(&self.triangles, out);
     }
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
@@ -263,12 +232,7 @@ impl Energy for CorotationalMembrane {
                     - nn * b[v].dot(&(normal_form * b[u])))
                     * w
             };
-            let sl = self.slots[ti];
-            for v in 0..3 {
-                acc.add_block(sl[v], t[v], t[v], &block(v, v));
-                let v1 = (v + 1) % 3;
-                acc.add_block(sl[3 + v], t[v], t[v1], &block(v, v1));
-            }
+            crate::util::add_triangle_blocks(acc, &self.slots[ti], t, block);
         }
         Ok(if request.value { energy } else { 0.0 })
     }

@@ -54,8 +54,10 @@ pub mod quadratic;
 pub mod spring;
 
 pub(crate) mod util {
-    use hinge_core::EvalError;
+    use hinge_core::energy::Accumulator;
+    use hinge_core::nalgebra::{Matrix2, Matrix3, Vector2};
     use hinge_core::pattern::SymmetricPattern;
+    use hinge_core::{EvalError, TriMesh};
 
     /// The pattern block of `(a, b)`, or a typed error naming the pair.
     pub fn slot(pattern: &SymmetricPattern, a: usize, b: usize) -> Result<usize, EvalError> {
@@ -96,6 +98,93 @@ pub(crate) mod util {
                     pattern.n_vertices()
                 ),
             })
+        }
+    }
+
+    /// A triangle's `b_v` (see [`triangle_rest_shapes`]) and rest area.
+    pub type RestShape = ([Vector2<f64>; 3], f64);
+
+    /// Per triangle of `rest`: `b_v = Dm⁻ᵀ g_v` for its corners (`g_0 = (−1, −1)`, `g_1 = (1, 0)`,
+    /// `g_2 = (0, 1)`, `Dm` the edges from corner 0 in a 2D frame of the triangle's plane), so that
+    /// `F = Σ_v x_v b_vᵀ`, and its rest area. A triangle without area is an error naming it.
+    pub fn triangle_rest_shapes(
+        rest: &TriMesh,
+        energy: &str,
+    ) -> Result<Vec<RestShape>, EvalError> {
+        let x = rest.positions();
+        rest.triangles()
+            .iter()
+            .enumerate()
+            .map(|(ti, t)| {
+                let (e1, e2) = (x[t[1]] - x[t[0]], x[t[2]] - x[t[0]]);
+                let n = e1.cross(&e2);
+                let area = 0.5 * n.norm();
+                let t1 = e1.normalize();
+                let t2 = n.normalize().cross(&t1);
+                let dm = Matrix2::new(e1.dot(&t1), e2.dot(&t1), 0.0, e2.dot(&t2));
+                let dm_inv_t = dm
+                    .try_inverse()
+                    .map(|m| m.transpose())
+                    .filter(|m| area > 0.0 && m.iter().all(|v| v.is_finite()))
+                    .ok_or_else(|| EvalError::Element {
+                        element: format!("triangle {ti} (vertices {}, {}, {})", t[0], t[1], t[2]),
+                        message: format!("{energy}: the rest triangle has no area"),
+                    })?;
+                let b = [
+                    Vector2::new(-1.0, -1.0),
+                    Vector2::new(1.0, 0.0),
+                    Vector2::new(0.0, 1.0),
+                ]
+                .map(|g| dm_inv_t * g);
+                Ok((b, area))
+            })
+            .collect()
+    }
+
+    /// Young's modulus `Y ≥ 0`, Poisson ratio `−1 < ν < 0.5` and thickness `h > 0`, all finite.
+    pub fn check_material(
+        energy: &str,
+        young: f64,
+        poisson: f64,
+        thickness: f64,
+    ) -> Result<(), EvalError> {
+        if young >= 0.0
+            && young.is_finite()
+            && poisson > -1.0
+            && poisson < 0.5
+            && thickness > 0.0
+            && thickness.is_finite()
+        {
+            Ok(())
+        } else {
+            Err(EvalError::Element {
+                element: energy.into(),
+                message: format!(
+                    "Young's modulus {young}, Poisson ratio {poisson}, thickness {thickness} out of range"
+                ),
+            })
+        }
+    }
+
+    /// The vertex pairs of the triangles' edges.
+    pub fn triangle_couplings(triangles: &[[usize; 3]], out: &mut Vec<(usize, usize)>) {
+        for t in triangles {
+            out.extend([(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
+        }
+    }
+
+    /// Adds a triangle's Hessian blocks `block(v, w)` (corners v, w) at its `slots` (see
+    /// [`triangle_slots`]).
+    pub fn add_triangle_blocks(
+        acc: &mut Accumulator,
+        slots: &[usize; 6],
+        t: &[usize; 3],
+        block: impl Fn(usize, usize) -> Matrix3<f64>,
+    ) {
+        for v in 0..3 {
+            acc.add_block(slots[v], t[v], t[v], &block(v, v));
+            let v1 = (v + 1) % 3;
+            acc.add_block(slots[3 + v], t[v], t[v1], &block(v, v1));
         }
     }
 

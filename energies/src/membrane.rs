@@ -36,7 +36,7 @@ pub struct StvkMembrane {
     thickness: f64,
     triangles: Vec<[usize; 3]>,
     /// Per triangle: b_0, b_1, b_2 and the rest area.
-    rest: Vec<([Vector2<f64>; 3], f64)>,
+    rest: Vec<crate::util::RestShape>,
     n_vertices: usize,
     /// Per triangle: slots of (0,0), (1,1), (2,2), (0,1), (1,2), (2,0).
     slots: Vec<[usize; 6]>,
@@ -46,49 +46,16 @@ impl StvkMembrane {
     /// A membrane of Young's modulus `young`, Poisson ratio `poisson` and thickness `thickness` over `rest`.
     ///
     /// # Errors
-    /// [`EvalError::Element`] for parameters out of range (`Y ≥ 0`, `−1 < ν < 0.5`, `h > 0`, all finite).
+    /// [`EvalError::Element`] for parameters out of range (`Y ≥ 0`, `−1 < ν < 0.5`, `h > 0`, all finite) or a
+    /// rest triangle without area (named).
     pub fn new(
         rest: &TriMesh,
         young: f64,
         poisson: f64,
         thickness: f64,
     ) -> Result<Self, EvalError> {
-        if !(young >= 0.0
-            && young.is_finite()
-            && poisson > -1.0
-            && poisson < 0.5
-            && thickness > 0.0
-            && thickness.is_finite())
-        {
-            return Err(EvalError::Element {
-                element: "membrane".into(),
-                message: format!(
-                    "Young's modulus {young}, Poisson ratio {poisson}, thickness {thickness} out of range"
-                ),
-            });
-        }
-        let x = rest.positions();
-        let rest_data = rest
-            .triangles()
-            .iter()
-            .map(|t| {
-                let (e1, e2) = (x[t[1]] - x[t[0]], x[t[2]] - x[t[0]]);
-                let n = e1.cross(&e2);
-                let area = 0.5 * n.norm();
-                let t1 = e1.normalize();
-                let t2 = n.normalize().cross(&t1);
-                let dm = Matrix2::new(e1.dot(&t1), e2.dot(&t1), 0.0, e2.dot(&t2));
-                // Rest triangles are validated non-degenerate, so Dm is invertible.
-                let dm_inv_t = dm.try_inverse().unwrap_or_else(Matrix2::zeros).transpose();
-                let b = [
-                    Vector2::new(-1.0, -1.0),
-                    Vector2::new(1.0, 0.0),
-                    Vector2::new(0.0, 1.0),
-                ]
-                .map(|g| dm_inv_t * g);
-                (b, area)
-            })
-            .collect();
+        crate::util::check_material("membrane", young, poisson, thickness)?;
+        let rest_data = crate::util::triangle_rest_shapes(rest, "membrane")?;
         Ok(Self {
             mu: young / (2.0 * (1.0 + poisson)),
             lambda: young * poisson / (1.0 - poisson * poisson),
@@ -111,9 +78,7 @@ impl Energy for StvkMembrane {
     }
 
     fn couplings(&self, out: &mut Vec<(usize, usize)>) {
-        for t in &self.triangles {
-            out.extend([(t[0], t[1]), (t[1], t[2]), (t[2], t[0])]);
-        }
+        crate::util::triangle_couplings(&self.triangles, out);
     }
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
@@ -171,12 +136,7 @@ impl Energy for StvkMembrane {
                         h * w
                     })
                 };
-                let sl = self.slots[ti];
-                for v in 0..3 {
-                    acc.add_block(sl[v], t[v], t[v], &block(v, v));
-                    let v1 = (v + 1) % 3;
-                    acc.add_block(sl[3 + v], t[v], t[v1], &block(v, v1));
-                }
+                crate::util::add_triangle_blocks(acc, &self.slots[ti], t, block);
             }
         }
         Ok(if request.value { energy } else { 0.0 })

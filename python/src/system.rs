@@ -10,6 +10,7 @@ use hinge_core::export::CsrLayout;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::ParamValue;
 use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
@@ -39,6 +40,7 @@ enum Term {
         young: f64,
         poisson: f64,
         thickness: f64,
+        corotational: bool,
     },
     Springs {
         k: f64,
@@ -86,7 +88,16 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             young,
             poisson,
             thickness,
+            corotational: false,
         } => Box::new(StvkMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?),
+        Term::Membrane {
+            young,
+            poisson,
+            thickness,
+            corotational: true,
+        } => Box::new(
+            CorotationalMembrane::from_material(rest, *young, *poisson, *thickness).map_err(e)?,
+        ),
         Term::Springs { k, compressive } => Box::new(
             MassSpring::new(rest, *k)
                 .map_err(e)?
@@ -245,12 +256,30 @@ impl PySystem {
         self.add(Term::Bending { name, text, values })
     }
 
-    /// A St. Venant–Kirchhoff membrane (Young's modulus, Poisson ratio, thickness).
-    fn add_membrane(&mut self, young: f64, poisson: f64, thickness: f64) -> PyResult<()> {
+    /// A membrane (Young's modulus, Poisson ratio, thickness): `kind` `stvk` (St. Venant–Kirchhoff) or
+    /// `corotational` (½ k A ‖F − R‖², k = Y h / (1 + ν)).
+    #[pyo3(signature = (young, poisson, thickness, kind="stvk"))]
+    fn add_membrane(
+        &mut self,
+        young: f64,
+        poisson: f64,
+        thickness: f64,
+        kind: &str,
+    ) -> PyResult<()> {
+        let corotational = match kind {
+            "stvk" => false,
+            "corotational" => true,
+            other => {
+                return Err(value_error(format!(
+                    "membrane kind: unknown `{other}` (stvk, corotational)"
+                )));
+            }
+        };
         self.add(Term::Membrane {
             young,
             poisson,
             thickness,
+            corotational,
         })
     }
 
@@ -339,6 +368,9 @@ impl PySystem {
             .iter()
             .map(|t| match t {
                 Term::Bending { name, .. } => name.clone(),
+                Term::Membrane {
+                    corotational: true, ..
+                } => "corotational-membrane".into(),
                 Term::Membrane { .. } => "membrane".into(),
                 Term::Springs { .. } => "springs".into(),
                 Term::Gravity { .. } => "gravity".into(),

@@ -288,6 +288,29 @@ def test_implicit_euler_falls_and_comes_to_rest_on_a_plane():
     assert np.abs(t.v).max() < 0.05
 
 
+def test_corotational_membrane_matches_finite_differences_and_is_zero_under_rigid_motion():
+    V, F = sheet(5, 4, 31, jitter=0.05)
+    s = hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2, kind="corotational")
+    assert s.terms == ["corotational-membrane"]
+    c, sn = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    e0, g0 = s.evaluate(V @ R.T + [0.3, -0.2, 1.0], hessian=False)
+    assert abs(e0) < 1e-20 and np.abs(g0).max() < 1e-12
+    rng = np.random.default_rng(3)
+    X = V * [1.1, 0.9, 1.0] + 0.02 * rng.standard_normal(V.shape)
+    e, g = s.evaluate(X, hessian=False)
+    assert e > 0
+    h = 1e-6
+    for i in rng.choice(X.size, 8, replace=False):
+        Xp, Xm = X.copy(), X.copy()
+        Xp.flat[i] += h
+        Xm.flat[i] -= h
+        fd = (s.evaluate(Xp, hessian=False)[0] - s.evaluate(Xm, hessian=False)[0]) / (2 * h)
+        assert abs(fd - g[i]) <= 1e-6 * max(1.0, abs(g[i]))
+    with pytest.raises(ValueError, match="unknown `linear`"):
+        hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2, kind="linear")
+
+
 def test_system_bad_input_raises_value_error():
     V, F = sheet(3, 3, 25)
     s = hinge.System(V, F)

@@ -113,14 +113,9 @@ impl SymplecticEuler {
     /// Sets the time of the current state and places the system there ([`System::set_time`]).
     ///
     /// # Errors
-    /// [`SolverError::Input`] for a non-finite time or the system's error (nothing changed then).
+    /// [`SolverError::Input`] for a non-finite time; the system's error (nothing changed then).
     pub fn set_time(&mut self, system: &mut System, time: f64) -> Result<(), SolverError> {
-        if !time.is_finite() {
-            return Err(SolverError::Input(format!("time {time} is not finite")));
-        }
-        system
-            .set_time(time)
-            .map_err(|e| SolverError::Input(format!("placing the system at time {time}: {e}")))?;
+        crate::newton::place_at(system, time)?;
         self.time = time;
         Ok(())
     }

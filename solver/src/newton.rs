@@ -825,6 +825,20 @@ fn largest_vertex_step(dofs: &[usize], d: &[f64]) -> f64 {
     largest.max(sq).sqrt()
 }
 
+/// Places `system` at `time` ([`System::set_time`]) for a stepper's `set_time`.
+///
+/// # Errors
+/// [`SolverError::Input`] for a non-finite time; the system's error as [`SolverError::Eval`].
+pub(crate) fn place_at(system: &mut System, time: f64) -> Result<(), SolverError> {
+    if !time.is_finite() {
+        return Err(SolverError::Input(format!("time {time} is not finite")));
+    }
+    system.set_time(time).map_err(|source| SolverError::Eval {
+        source,
+        stats: Box::default(),
+    })
+}
+
 /// Implicit Euler time stepping on a [`System`] with lumped masses and pins.
 pub struct ImplicitEuler {
     /// The time step.
@@ -893,13 +907,7 @@ impl ImplicitEuler {
     /// # Errors
     /// [`SolverError::Input`] for a non-finite time; the system's error (nothing changed then).
     pub fn set_time(&mut self, system: &mut System, time: f64) -> Result<(), SolverError> {
-        if !time.is_finite() {
-            return Err(SolverError::Input(format!("time {time} is not finite")));
-        }
-        system.set_time(time).map_err(|source| SolverError::Eval {
-            source,
-            stats: Box::default(),
-        })?;
+        place_at(system, time)?;
         self.time = time;
         Ok(())
     }

@@ -63,7 +63,8 @@ fn parse_errors_carry_columns() {
 fn fused_instructions_compute_both_operations_bitwise() {
     // Every pair of binary operations, with the first result on either side of the second: the program
     // fuses them (fewer instructions than operations) and computes exactly the two f64 operations.
-    let ops: [(&str, fn(f64, f64) -> f64); 4] = [
+    type Binary = fn(f64, f64) -> f64;
+    let ops: [(&str, Binary); 4] = [
         ("+", |x, y| x + y),
         ("-", |x, y| x - y),
         ("*", |x, y| x * y),

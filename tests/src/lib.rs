@@ -309,3 +309,78 @@ pub fn one_hinge_mesh() -> hinge_core::TriMesh {
     hinge_core::TriMesh::new(one_hinge_positions(), vec![[0, 1, 2], [3, 2, 1]])
         .expect("a valid two-triangle mesh")
 }
+
+/// Times recorded by a [`StepGate`].
+pub type Times = std::sync::Arc<std::sync::Mutex<Vec<f64>>>;
+
+/// A zero energy for stepper tests: it refuses steps longer than `max_dt` (an evaluation error, forcing
+/// substeps) and records the time it was placed at ([`Energy::set_time`](hinge_core::energy::Energy::set_time))
+/// whenever it is evaluated (`evaluated`) and when an accepted step ends (`ended`).
+pub struct StepGate {
+    n: usize,
+    max_dt: f64,
+    dt: f64,
+    time: f64,
+    ended: Times,
+    evaluated: Times,
+}
+
+impl StepGate {
+    /// A gate over `n` vertices refusing steps above `max_dt`, recording into `ended` and `evaluated`.
+    pub fn new(n: usize, max_dt: f64, ended: &Times, evaluated: &Times) -> Self {
+        Self {
+            n,
+            max_dt,
+            dt: 0.0,
+            time: f64::NAN,
+            ended: std::sync::Arc::clone(ended),
+            evaluated: std::sync::Arc::clone(evaluated),
+        }
+    }
+}
+
+impl hinge_core::energy::Energy for StepGate {
+    fn name(&self) -> &str {
+        "gate"
+    }
+    fn n_vertices(&self) -> usize {
+        self.n
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(
+        &mut self,
+        _: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), hinge_core::EvalError> {
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        _: &[Vector3<f64>],
+        _: hinge_core::bending::Request,
+        _: hinge_core::bending::Parallelism,
+        _: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, hinge_core::EvalError> {
+        if let Ok(mut e) = self.evaluated.lock() {
+            e.push(self.time);
+        }
+        if self.dt > self.max_dt {
+            Err(hinge_core::EvalError::Step { dt: self.dt })
+        } else {
+            Ok(0.0)
+        }
+    }
+    fn begin_step(&mut self, _: &[Vector3<f64>], dt: f64) -> Result<(), hinge_core::EvalError> {
+        self.dt = dt;
+        Ok(())
+    }
+    fn set_time(&mut self, time: f64) -> Result<(), hinge_core::EvalError> {
+        self.time = time;
+        Ok(())
+    }
+    fn end_step(&mut self, _: &[Vector3<f64>]) -> Result<(), hinge_core::EvalError> {
+        if let Ok(mut e) = self.ended.lock() {
+            e.push(self.time);
+        }
+        Ok(())
+    }
+}

@@ -3,15 +3,12 @@
 //! start (symplectic Euler) whether or not the frame took substeps, a failed frame leaves it at the frame's
 //! start, and a rising plane lifts an irregular, renumbered sheet with it.
 
-use std::sync::{Arc, Mutex};
-
+use hinge_core::TriMesh;
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy, System};
+use hinge_core::energy::{Energy, System};
 use hinge_core::grid::SplitMix64;
 use hinge_core::nalgebra::Vector3;
-use hinge_core::pattern::SymmetricPattern;
 use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
-use hinge_core::{EvalError, TriMesh};
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::motion::Motion;
@@ -20,6 +17,7 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::linear::default_solver;
 use hinge_solver::newton::{ImplicitEuler, NewtonParams, SubstepPolicy};
+use hinge_tests::{StepGate, Times};
 
 /// Rotates `d` about the unit `axis` by `angle` (Rodrigues' formula, written out).
 fn rodrigues(d: Vector3<f64>, axis: Vector3<f64>, angle: f64) -> Vector3<f64> {
@@ -133,66 +131,13 @@ fn obstacles_are_where_their_motion_puts_them() {
     assert!(c().with_motion(Motion::Keyframes(Vec::new())).is_err());
 }
 
-/// Times recorded by a [`Clock`].
-type Times = Arc<Mutex<Vec<f64>>>;
-
-/// Zero energy that records the time it is placed at: when an accepted step ends (`ended`), when it is
-/// evaluated (`evaluated`); it refuses steps longer than `max_dt`, forcing substeps.
-struct Clock {
-    n: usize,
-    max_dt: f64,
-    dt: f64,
-    time: f64,
-    ended: Times,
-    evaluated: Times,
-}
-
-impl Energy for Clock {
-    fn name(&self) -> &str {
-        "clock"
-    }
-    fn n_vertices(&self) -> usize {
-        self.n
-    }
-    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
-    fn bind(&mut self, _: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        Ok(())
-    }
-    fn add_to(
-        &mut self,
-        _: &[Vector3<f64>],
-        _: Request,
-        _: Parallelism,
-        _: &mut Accumulator,
-    ) -> Result<f64, EvalError> {
-        self.evaluated.lock().unwrap().push(self.time);
-        if self.dt > self.max_dt {
-            Err(EvalError::Step { dt: self.dt })
-        } else {
-            Ok(0.0)
-        }
-    }
-    fn begin_step(&mut self, _: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
-        self.dt = dt;
-        Ok(())
-    }
-    fn set_time(&mut self, time: f64) -> Result<(), EvalError> {
-        self.time = time;
-        Ok(())
-    }
-    fn end_step(&mut self, _: &[Vector3<f64>]) -> Result<(), EvalError> {
-        self.ended.lock().unwrap().push(self.time);
-        Ok(())
-    }
-}
-
-/// A small sheet on a rising plane (with gravity) plus a [`Clock`]; the sheet's rest mesh is irregular and
+/// A small sheet on a rising plane (with gravity) plus a [`StepGate`]; the sheet's rest mesh is irregular and
 /// renumbered.
 fn sheet_on_a_rising_plane(max_dt: f64, speed: f64) -> (TriMesh, System, Times, Times) {
     let sheet = irregular_sheet(5, 5, 4).unwrap();
     let rest = renumber(&sheet, &random_permutation(sheet.n_vertices(), 9)).unwrap();
     let n = rest.n_vertices();
-    let (ended, evaluated) = (Arc::default(), Arc::default());
+    let (ended, evaluated) = (Times::default(), Times::default());
     let plane = Contact::new(
         n,
         Obstacle::Plane {
@@ -209,14 +154,7 @@ fn sheet_on_a_rising_plane(max_dt: f64, speed: f64) -> (TriMesh, System, Times, 
         Box::new(MassSpring::new(&rest, 200.0).unwrap()),
         Box::new(Gravity::new(lumped_masses(&rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
         Box::new(plane),
-        Box::new(Clock {
-            n,
-            max_dt,
-            dt: 0.0,
-            time: f64::NAN,
-            ended: Arc::clone(&ended),
-            evaluated: Arc::clone(&evaluated),
-        }),
+        Box::new(StepGate::new(n, max_dt, &ended, &evaluated)),
     ];
     let sys = System::new(n, terms).unwrap();
     (rest, sys, ended, evaluated)

@@ -2,12 +2,8 @@
 //! (sub)steps, against the law computed by hand; the energy with updated rest angles against finite
 //! differences.
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy, HingeTerm, Plasticity, System};
-use hinge_core::pattern::SymmetricPattern;
+use hinge_core::energy::{Energy, HingeTerm, Plasticity, System};
 use hinge_core::psi::DiscreteShells;
 use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
 use hinge_core::{EvalError, TriMesh};
@@ -196,49 +192,6 @@ fn bend(x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
     hinge_core::shapes::bend(x)
 }
 
-/// Zero energy that refuses steps longer than `max_dt` (forcing substeps) and counts the accepted steps
-/// that end.
-struct StepGate {
-    n: usize,
-    max_dt: f64,
-    dt: f64,
-    ended: Arc<AtomicUsize>,
-}
-
-impl Energy for StepGate {
-    fn name(&self) -> &str {
-        "gate"
-    }
-    fn n_vertices(&self) -> usize {
-        self.n
-    }
-    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
-    fn bind(&mut self, _: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        Ok(())
-    }
-    fn add_to(
-        &mut self,
-        _: &[Vector3<f64>],
-        _: Request,
-        _: Parallelism,
-        _: &mut Accumulator,
-    ) -> Result<f64, EvalError> {
-        if self.dt > self.max_dt {
-            Err(EvalError::Step { dt: self.dt })
-        } else {
-            Ok(0.0)
-        }
-    }
-    fn begin_step(&mut self, _: &[Vector3<f64>], dt: f64) -> Result<(), EvalError> {
-        self.dt = dt;
-        Ok(())
-    }
-    fn end_step(&mut self, _: &[Vector3<f64>]) -> Result<(), EvalError> {
-        self.ended.fetch_add(1, Ordering::SeqCst);
-        Ok(())
-    }
-}
-
 #[test]
 fn rest_angles_follow_accepted_substeps_only() {
     // A folded hinge springing open under implicit Euler with plasticity; the gate rejects steps above
@@ -246,7 +199,7 @@ fn rest_angles_follow_accepted_substeps_only() {
     // dt/4 accepted twice more: 4 accepted substeps, 3 rejected attempts. Each accepted substep ends once,
     // a rejected attempt never.
     let (rest, fold) = one_hinge();
-    let ended = Arc::new(AtomicUsize::new(0));
+    let (ended, evaluated) = (Times::default(), Times::default());
     let dt = 0.01;
     let make = |max_dt: f64| {
         let terms: Vec<Box<dyn Energy>> = vec![
@@ -262,12 +215,7 @@ fn rest_angles_follow_accepted_substeps_only() {
                 })
                 .unwrap(),
             ),
-            Box::new(StepGate {
-                n: 4,
-                max_dt,
-                dt: 0.0,
-                ended: Arc::clone(&ended),
-            }),
+            Box::new(StepGate::new(4, max_dt, &ended, &evaluated)),
         ];
         System::new(4, terms).unwrap()
     };
@@ -291,15 +239,15 @@ fn rest_angles_follow_accepted_substeps_only() {
         "frame: {} accepted substeps, {} rejected attempts, {} step ends; rest angle {:.6}",
         fs.substeps,
         fs.failed_attempts,
-        ended.load(Ordering::SeqCst),
+        ended.lock().unwrap().len(),
         sys.evolving_rest_angles().unwrap()[0]
     );
     assert_eq!(fs.substeps, 4);
     assert_eq!(fs.failed_attempts, 3);
-    assert_eq!(ended.load(Ordering::SeqCst), 4);
+    assert_eq!(ended.lock().unwrap().len(), 4);
     assert!(sys.evolving_rest_angles().unwrap()[0] != 0.0);
     // A frame that fails at every substep leaves the rest angles as they were.
-    ended.store(0, Ordering::SeqCst);
+    ended.lock().unwrap().clear();
     let mut sys = make(dt / 1000.0);
     let mut stepper =
         ImplicitEuler::new(&sys, dt, masses, pins, default_solver(), params_tight()).unwrap();
@@ -309,7 +257,7 @@ fn rest_angles_follow_accepted_substeps_only() {
             .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 3 })
             .is_err()
     );
-    assert_eq!(ended.load(Ordering::SeqCst), 0);
+    assert_eq!(ended.lock().unwrap().len(), 0);
     assert_eq!(sys.evolving_rest_angles().unwrap(), &[0.0]);
     assert_eq!(x, fold(0.6));
 }
@@ -321,7 +269,7 @@ fn moving_pins_reach_their_targets_at_every_frame_end_under_substeps() {
     // `rest_angles_follow_accepted_substeps_only`). At the end of every frame the pin is exactly at the
     // frame's target, and within a frame each substep took it to its own end's target.
     let (rest, fold) = one_hinge();
-    let ended = Arc::new(AtomicUsize::new(0));
+    let (ended, evaluated) = (Times::default(), Times::default());
     let dt = 0.01;
     let terms: Vec<Box<dyn Energy>> = vec![
         Box::new(HingeTerm::new(
@@ -329,12 +277,7 @@ fn moving_pins_reach_their_targets_at_every_frame_end_under_substeps() {
             BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
             Method::Refactored,
         )),
-        Box::new(StepGate {
-            n: 4,
-            max_dt: dt / 3.0,
-            dt: 0.0,
-            ended: Arc::clone(&ended),
-        }),
+        Box::new(StepGate::new(4, dt / 3.0, &ended, &evaluated)),
     ];
     let mut sys = System::new(4, terms).unwrap();
     let pins = Pins::new(4, vec![1, 2, 3]).unwrap();

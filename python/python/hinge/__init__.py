@@ -177,8 +177,10 @@ class System:
         self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()})
         return self
 
-    def add_membrane(self, young, poisson, thickness):
-        self._s.add_membrane(float(young), float(poisson), float(thickness))
+    def add_membrane(self, young, poisson, thickness, kind="stvk"):
+        """A membrane: ``kind`` "stvk" (St. Venant-Kirchhoff) or "corotational" (k/2 A |F - R|^2 with
+        k = young * thickness / (1 + poisson), exact Hessian)."""
+        self._s.add_membrane(float(young), float(poisson), float(thickness), str(kind))
         return self
 
     def add_springs(self, k, compressive=True):
