@@ -107,10 +107,7 @@ pub(crate) mod util {
     /// Per triangle of `rest`: `b_v = Dm⁻ᵀ g_v` for its corners (`g_0 = (−1, −1)`, `g_1 = (1, 0)`,
     /// `g_2 = (0, 1)`, `Dm` the edges from corner 0 in a 2D frame of the triangle's plane), so that
     /// `F = Σ_v x_v b_vᵀ`, and its rest area. A triangle without area is an error naming it.
-    pub fn triangle_rest_shapes(
-        rest: &TriMesh,
-        energy: &str,
-    ) -> Result<Vec<RestShape>, EvalError> {
+    pub fn triangle_rest_shapes(rest: &TriMesh, energy: &str) -> Result<Vec<RestShape>, EvalError> {
         let x = rest.positions();
         rest.triangles()
             .iter()
