@@ -114,38 +114,12 @@ impl Contact {
     /// [`Contact::new`]); [`Energy::set_time`] places it.
     ///
     /// # Errors
-    /// [`EvalError::Element`] for a motion with non-finite data, a zero rotation axis, or keyframe times
-    /// that are not positive and increasing.
+    /// [`EvalError::Element`] with [`Motion::check`]'s reason.
     pub fn with_motion(mut self, motion: Motion) -> Result<Self, EvalError> {
-        let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
-        let ok = match &motion {
-            Motion::Fixed => true,
-            Motion::Translation(v) => finite(v),
-            Motion::Rotation {
-                center,
-                axis,
-                angular_velocity,
-            } => {
-                finite(center)
-                    && finite(axis)
-                    && (axis.norm() - 1.0).abs() < 1e-12
-                    && angular_velocity.is_finite()
-            }
-            Motion::Keyframes(k) => {
-                !k.is_empty()
-                    && k[0].0 > 0.0
-                    && k.iter().all(|(t, o)| t.is_finite() && finite(o))
-                    && k.windows(2).all(|w| w[1].0 > w[0].0)
-            }
-        };
-        if !ok {
-            return Err(EvalError::Element {
-                element: "contact".into(),
-                message: format!(
-                    "obstacle motion {motion:?}: data must be finite, the axis a unit vector, keyframe times positive and increasing"
-                ),
-            });
-        }
+        motion.check().map_err(|why| EvalError::Element {
+            element: "contact".into(),
+            message: format!("obstacle motion: {why}"),
+        })?;
         self.motion = Some((self.obstacle, motion));
         Ok(self)
     }

@@ -25,6 +25,49 @@ pub enum Motion {
 }
 
 impl Motion {
+    /// Checks the data: finite, a unit rotation axis, keyframes non-empty with positive increasing times.
+    ///
+    /// # Errors
+    /// What is wrong, in one line.
+    pub fn check(&self) -> Result<(), String> {
+        let finite = |v: &Vector3<f64>| v.iter().all(|c| c.is_finite());
+        match self {
+            Motion::Fixed => Ok(()),
+            Motion::Translation(v) if finite(v) => Ok(()),
+            Motion::Translation(v) => Err(format!("velocity {v:?} is not finite")),
+            Motion::Rotation {
+                center,
+                axis,
+                angular_velocity,
+            } => {
+                if !(finite(center) && angular_velocity.is_finite()) {
+                    Err(format!(
+                        "centre {center:?} / angular velocity {angular_velocity} not finite"
+                    ))
+                } else if !((axis.norm() - 1.0).abs() < 1e-12) {
+                    Err(format!("axis {axis:?} is not a unit vector"))
+                } else {
+                    Ok(())
+                }
+            }
+            Motion::Keyframes(k) => {
+                if k.is_empty() {
+                    Err("no keyframes".into())
+                } else if !(k[0].0 > 0.0
+                    && k.iter().all(|(t, o)| t.is_finite() && finite(o))
+                    && k.windows(2).all(|w| w[1].0 > w[0].0))
+                {
+                    Err(
+                        "keyframe times must be finite, positive and increasing, offsets finite"
+                            .into(),
+                    )
+                } else {
+                    Ok(())
+                }
+            }
+        }
+    }
+
     /// The target at time `t` of a point whose rest position is `p`.
     pub fn target(&self, p: Vector3<f64>, t: f64) -> Vector3<f64> {
         match self {
