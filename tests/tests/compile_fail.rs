@@ -1,8 +1,0 @@
-//! What the derive macro must reject, with the messages pinned (`tests/ui/*.stderr`; regenerate with
-//! `TRYBUILD=overwrite cargo test -p hinge-tests --release --test compile_fail` after a deliberate change).
-
-#[test]
-fn derive_rejects_unsupported_input() {
-    let t = trybuild::TestCases::new();
-    t.compile_fail("ui/*.rs");
-}
