@@ -63,6 +63,69 @@ impl Accumulator<'_> {
     }
 }
 
+/// A parameter of an energy that derivatives can be taken with respect to ([`Energy::parameters`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Parameter {
+    /// Its name within the energy (`k`, `theta_bar`, `young`, …); a [`System`] prefixes the term name.
+    pub name: String,
+    /// How many values it has: 1 for a scalar, the hinge count for a per-hinge field, and so on.
+    pub len: usize,
+}
+
+/// What [`Energy::add_parameter_derivatives`] adds to, for one parameter of `len` values. Empty slices are not
+/// requested.
+#[derive(Debug)]
+pub struct ParameterOutput<'a> {
+    /// `∂E/∂p` (`len` entries).
+    pub energy: &'a mut [f64],
+    /// The vector the gradient's derivative is contracted with (`3n` entries, or empty).
+    pub lambda: &'a [f64],
+    /// `(∂∇E/∂p)ᵀ λ` (`len` entries; requested when `lambda` is not empty).
+    pub contracted: &'a mut [f64],
+    /// `∂∇E/∂p` itself (`3n` entries), for a scalar parameter (`len` = 1) only: what forward sensitivities
+    /// `dx*/dp = −H⁻¹ ∂∇E/∂p` need.
+    pub gradient: &'a mut [f64],
+}
+
+/// The error for a parameter name an energy does not have.
+pub fn unknown_parameter(name: &str, known: &[Parameter]) -> EvalError {
+    EvalError::Parameter {
+        name: name.to_string(),
+        message: if known.is_empty() {
+            "unknown: this energy has no differentiable parameters".into()
+        } else {
+            format!(
+                "unknown (known: {})",
+                known
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        },
+    }
+}
+
+/// Checks `values` against parameter `p` (length, finiteness).
+///
+/// # Errors
+/// [`EvalError::Parameter`] naming the parameter (and the first non-finite entry).
+pub fn check_parameter_values(p: &Parameter, values: &[f64]) -> Result<(), EvalError> {
+    if values.len() != p.len {
+        return Err(EvalError::Parameter {
+            name: p.name.clone(),
+            message: format!("has {} values, {} given", p.len, values.len()),
+        });
+    }
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(EvalError::Parameter {
+            name: p.name.clone(),
+            message: format!("value {i} is not finite ({})", values[i]),
+        });
+    }
+    Ok(())
+}
+
 /// An energy over the vertices of one mesh.
 pub trait Energy: Send + Sync {
     /// A short name for reports (`"membrane"`, `"tan-bending"`, …).
@@ -135,6 +198,87 @@ pub trait Energy: Send + Sync {
     fn max_plastic_angle(&self) -> Option<f64> {
         None
     }
+
+    /// The parameters this energy can be differentiated with respect to (fitting, sensitivities). Default:
+    /// none.
+    fn parameters(&self) -> Vec<Parameter> {
+        Vec::new()
+    }
+
+    /// The current values of parameter `name`.
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for a name not in [`Energy::parameters`].
+    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
+        Err(unknown_parameter(name, &self.parameters()))
+    }
+
+    /// Sets parameter `name` (as many values as [`Parameter::len`], finite; an energy may require more, such
+    /// as positivity).
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for an unknown name or a bad value; on error nothing changes.
+    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
+        let _ = values;
+        Err(unknown_parameter(name, &self.parameters()))
+    }
+
+    /// Adds the derivatives with respect to parameter `name` at positions `x` that `out` requests: `∂E/∂p`,
+    /// `(∂∇E/∂p)ᵀ λ`, and for a scalar parameter `∂∇E/∂p`.
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for an unknown name or buffers of the wrong length; the evaluation's typed
+    /// errors (a degenerate hinge, say).
+    fn add_parameter_derivatives(
+        &mut self,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        let _ = (x, out);
+        Err(unknown_parameter(name, &self.parameters()))
+    }
+}
+
+/// Checks the buffers of a [`ParameterOutput`] for a parameter of `len` values over `n` vertices.
+///
+/// # Errors
+/// [`EvalError::Parameter`] naming the buffer.
+pub fn check_parameter_output(
+    name: &str,
+    len: usize,
+    n: usize,
+    out: &ParameterOutput,
+) -> Result<(), EvalError> {
+    let bad = |what: &str, got: usize, want: usize| EvalError::Parameter {
+        name: name.to_string(),
+        message: format!("{what} has length {got}, expected {want}"),
+    };
+    if !out.energy.is_empty() && out.energy.len() != len {
+        return Err(bad("the energy derivative", out.energy.len(), len));
+    }
+    if !out.lambda.is_empty() {
+        if out.lambda.len() != 3 * n {
+            return Err(bad("λ", out.lambda.len(), 3 * n));
+        }
+        if out.contracted.len() != len {
+            return Err(bad("the contracted derivative", out.contracted.len(), len));
+        }
+    }
+    if !out.gradient.is_empty() {
+        if len != 1 {
+            return Err(EvalError::Parameter {
+                name: name.to_string(),
+                message: format!(
+                    "has {len} values: the full gradient derivative is for scalar parameters"
+                ),
+            });
+        }
+        if out.gradient.len() != 3 * n {
+            return Err(bad("the gradient derivative", out.gradient.len(), 3 * n));
+        }
+    }
+    Ok(())
 }
 
 /// Bending plasticity of a [`HingeTerm`]: after every accepted (sub)step, a hinge whose angle θ has moved
@@ -335,6 +479,133 @@ where
 
     fn evolving_rest_angles(&self) -> Option<&[f64]> {
         self.plastic.as_ref().map(|p| p.theta_bar.as_slice())
+    }
+
+    /// The ψ's parameters ([`HingePsi::parameters`]; 1 value, or one per hinge) and the rest angles
+    /// `theta_bar` (one per hinge), when the ψ has parameter derivatives (derived and run-time energies).
+    fn parameters(&self) -> Vec<Parameter> {
+        let psi = self.model.psi();
+        if !psi.has_parameter_derivatives() {
+            return Vec::new();
+        }
+        let n_hinges = self.model.rest_hinges().len();
+        psi.parameters()
+            .into_iter()
+            .map(|p| Parameter {
+                len: if p.per_hinge { n_hinges } else { 1 },
+                name: p.name,
+            })
+            .chain(std::iter::once(Parameter {
+                name: "theta_bar".into(),
+                len: n_hinges,
+            }))
+            .collect()
+    }
+
+    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
+        let params = self.parameters();
+        match params.iter().position(|p| p.name == name) {
+            Some(k) if k + 1 == params.len() => Ok(match &self.plastic {
+                Some(state) => state.theta_bar.clone(),
+                None => self
+                    .model
+                    .rest_hinges()
+                    .iter()
+                    .map(|r| r.theta_bar)
+                    .collect(),
+            }),
+            Some(k) => self
+                .model
+                .psi()
+                .parameter_values(k)
+                .ok_or_else(|| unknown_parameter(name, &params)),
+            None => Err(unknown_parameter(name, &params)),
+        }
+    }
+
+    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
+        let params = self.parameters();
+        let Some(k) = params.iter().position(|p| p.name == name) else {
+            return Err(unknown_parameter(name, &params));
+        };
+        check_parameter_values(&params[k], values)?;
+        if k + 1 == params.len() {
+            self.model.set_rest_angles(values)?;
+            if let Some(state) = self.plastic.as_mut() {
+                state.theta_bar.copy_from_slice(values);
+            }
+            Ok(())
+        } else {
+            self.model.set_psi_parameter(k, values)
+        }
+    }
+
+    fn add_parameter_derivatives(
+        &mut self,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        let params = self.parameters();
+        let Some(k) = params.iter().position(|p| p.name == name) else {
+            return Err(unknown_parameter(name, &params));
+        };
+        let n = self.model.n_vertices();
+        check_same_vertex_count(n, x.len())?;
+        crate::mesh::validate_positions(x)?;
+        check_parameter_output(name, params[k].len, n, out)?;
+        let per_hinge = params[k].len != 1 || k + 1 == params.len();
+        let psi = self.model.psi();
+        let mut d = vec![[0.0; 2]; params.len()];
+        for (i, h) in self.model.topology().hinges().iter().enumerate() {
+            let st = h.vertices.map(|v| x[v]);
+            let (theta, grad) =
+                crate::hinge::theta_and_gradient(&st).map_err(|source| EvalError::Hinge {
+                    hinge: i,
+                    edge: h.edge,
+                    vertices: h.vertices,
+                    source,
+                })?;
+            let q = self
+                .model
+                .hinge_quantities(i)
+                .ok_or_else(|| unknown_parameter(name, &params))?;
+            if !psi.parameter_derivatives(&q, theta, &mut d) {
+                return Err(EvalError::Parameter {
+                    name: name.to_string(),
+                    message: "the ψ provides no parameter derivatives".into(),
+                });
+            }
+            let [de, dd1] = d[k];
+            if !(de.is_finite() && dd1.is_finite()) {
+                return Err(EvalError::NonFiniteEnergy {
+                    hinge: i,
+                    vertices: h.vertices,
+                    theta,
+                });
+            }
+            let j = if per_hinge { i } else { 0 };
+            if !out.energy.is_empty() {
+                out.energy[j] += de;
+            }
+            if !out.lambda.is_empty() {
+                let mut dot = 0.0;
+                for (c, &v) in h.vertices.iter().enumerate() {
+                    let l = &out.lambda[3 * v..3 * v + 3];
+                    dot += grad[c].x * l[0] + grad[c].y * l[1] + grad[c].z * l[2];
+                }
+                out.contracted[j] += dd1 * dot;
+            }
+            if !out.gradient.is_empty() {
+                for (c, &v) in h.vertices.iter().enumerate() {
+                    let g = &mut out.gradient[3 * v..3 * v + 3];
+                    g[0] += dd1 * grad[c].x;
+                    g[1] += dd1 * grad[c].y;
+                    g[2] += dd1 * grad[c].z;
+                }
+            }
+        }
+        Ok(())
     }
 
     fn max_plastic_angle(&self) -> Option<f64> {
@@ -552,6 +823,70 @@ impl System {
             out.energy += *e;
         }
         Ok(())
+    }
+
+    /// Every term's differentiable parameters, named `TERM.NAME` (the term's [`Energy::name`], a dot, the
+    /// term's parameter name), in term order.
+    pub fn parameters(&self) -> Vec<Parameter> {
+        self.terms
+            .iter()
+            .flat_map(|t| {
+                t.parameters().into_iter().map(move |p| Parameter {
+                    name: format!("{}.{}", t.name(), p.name),
+                    len: p.len,
+                })
+            })
+            .collect()
+    }
+
+    /// The term and the term's own parameter name of `TERM.NAME` (the first term of that name that has the
+    /// parameter).
+    fn find_parameter(&self, name: &str) -> Result<(usize, String), EvalError> {
+        for (i, t) in self.terms.iter().enumerate() {
+            if let Some(rest) = name
+                .strip_prefix(t.name())
+                .and_then(|r| r.strip_prefix('.'))
+                && t.parameters().iter().any(|p| p.name == rest)
+            {
+                return Ok((i, rest.to_string()));
+            }
+        }
+        Err(unknown_parameter(name, &self.parameters()))
+    }
+
+    /// The values of parameter `TERM.NAME` (see [`System::parameters`]).
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for an unknown name (the message lists the known ones).
+    pub fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
+        let (i, own) = self.find_parameter(name)?;
+        self.terms[i].parameter(&own)
+    }
+
+    /// Sets parameter `TERM.NAME` (see [`Energy::set_parameter`]).
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for an unknown name or bad values; the term's own errors. On error nothing
+    /// changes.
+    pub fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
+        let (i, own) = self.find_parameter(name)?;
+        self.terms[i].set_parameter(&own, values)
+    }
+
+    /// Adds the derivatives of the system's energy with respect to parameter `TERM.NAME` at `x` that `out`
+    /// requests (see [`Energy::add_parameter_derivatives`]).
+    ///
+    /// # Errors
+    /// As [`Energy::add_parameter_derivatives`].
+    pub fn add_parameter_derivatives(
+        &mut self,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        check_same_vertex_count(self.n_vertices, x.len())?;
+        let (i, own) = self.find_parameter(name)?;
+        self.terms[i].add_parameter_derivatives(x, &own, out)
     }
 
     /// Convenience: evaluates into fresh buffers.

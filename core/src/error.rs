@@ -212,6 +212,15 @@ pub enum EvalError {
     /// The energy's parameters do not fit the mesh.
     #[error(transparent)]
     Psi(#[from] crate::psi::PsiError),
+    /// A parameter asked for by name (fitting, sensitivities) that the energy or system does not have, or
+    /// cannot differentiate with respect to, or a value of the wrong length for it.
+    #[error("parameter `{name}`: {message}")]
+    Parameter {
+        /// The parameter as named by the caller.
+        name: String,
+        /// What is wrong (for an unknown name, the names there are).
+        message: String,
+    },
     /// An output buffer does not have the length this model needs.
     #[error("output buffer `{buffer}` has length {got}, expected {expected}")]
     BufferLength {

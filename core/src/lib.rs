@@ -162,6 +162,6 @@ extern crate self as hinge_core;
 /// Items the derive macro's generated code refers to. Not a public API: may change without notice.
 #[doc(hidden)]
 pub mod __private {
-    pub use crate::psi::{HingePsi, HingeQuantities, PsiError};
+    pub use crate::psi::{HingePsi, HingeQuantities, PsiError, PsiParameter, scalar_length_error};
     pub use num_dual::{self, DualNum};
 }

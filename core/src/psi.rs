@@ -77,6 +77,16 @@ pub struct PsiError {
     pub message: String,
 }
 
+/// A parameter of ψ that derivatives can be taken with respect to (fitting, sensitivities): a struct field or
+/// a run-time parameter, one value for every hinge or one per hinge.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PsiParameter {
+    /// The field or run-time parameter name.
+    pub name: String,
+    /// Whether it holds one value per hinge (hinge order) rather than one for all.
+    pub per_hinge: bool,
+}
+
 /// A hinge bending energy ψ(θ).
 ///
 /// Implement it by hand, or declare it with `#[derive(HingeEnergy)]` (see the crate docs).
@@ -140,6 +150,57 @@ pub trait HingePsi: Sync {
 
     /// ψ for any dual scalar: the reference that `autodiff` and the tests differentiate.
     fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D;
+
+    /// Whether this ψ provides parameter derivatives ([`HingePsi::parameter_derivatives`]): derived and
+    /// run-time energies do (generated symbolically), hand-written ones by default do not.
+    fn has_parameter_derivatives(&self) -> bool {
+        false
+    }
+
+    /// The parameters [`HingePsi::parameter_derivatives`] differentiates with respect to, in its order (the
+    /// rest angle θ̄ comes after them and is not listed). Default: none.
+    fn parameters(&self) -> Vec<PsiParameter> {
+        Vec::new()
+    }
+
+    /// Writes `[∂ψ/∂p, ∂ψ′/∂p]` at hinge `q` and angle `theta` for every parameter of
+    /// [`HingePsi::parameters`], then for the rest angle θ̄: `out` has `parameters().len() + 1` entries. For a
+    /// per-hinge parameter `p` is hinge `q.hinge`'s own value. Returns false, leaving `out` untouched, when the
+    /// energy has no parameter derivatives or `out` has another length.
+    fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
+        let _ = (q, theta, out);
+        false
+    }
+
+    /// The value of parameter `index` of [`HingePsi::parameters`]: one entry for a scalar, one per hinge for
+    /// a per-hinge parameter. `None` for an index out of range.
+    fn parameter_values(&self, index: usize) -> Option<Vec<f64>> {
+        let _ = index;
+        None
+    }
+
+    /// Sets parameter `index` of [`HingePsi::parameters`] (one value for a scalar; one per hinge for a
+    /// per-hinge parameter, checked by [`HingePsi::validate`] when a model takes the energy).
+    ///
+    /// # Errors
+    /// A [`PsiError`] for an index out of range or a scalar given another number of values than one; on
+    /// error nothing changes.
+    fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> Result<(), PsiError> {
+        let _ = values;
+        Err(PsiError {
+            name: format!("#{index}").into(),
+            message: "this energy has no settable parameters".into(),
+        })
+    }
+}
+
+/// The [`PsiError`] for a scalar parameter given `n` values (shared by the derive and the run-time ψ).
+#[doc(hidden)]
+pub fn scalar_length_error(name: &str, n: usize) -> PsiError {
+    PsiError {
+        name: name.to_string().into(),
+        message: format!("is one value for every hinge, got {n} values"),
+    }
 }
 
 impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
@@ -190,6 +251,59 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
 
     fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D {
         self.0.psi_dual(&p.0, theta) + self.1.psi_dual(&p.1, theta)
+    }
+
+    fn has_parameter_derivatives(&self) -> bool {
+        self.0.has_parameter_derivatives() && self.1.has_parameter_derivatives()
+    }
+
+    /// The first term's parameters named `0.NAME`, then the second's named `1.NAME` (nested tuples nest the
+    /// prefixes).
+    fn parameters(&self) -> Vec<PsiParameter> {
+        let tag = |k: usize, v: Vec<PsiParameter>| {
+            v.into_iter().map(move |p| PsiParameter {
+                name: format!("{k}.{}", p.name),
+                per_hinge: p.per_hinge,
+            })
+        };
+        tag(0, self.0.parameters())
+            .chain(tag(1, self.1.parameters()))
+            .collect()
+    }
+
+    fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
+        let (na, nb) = (self.0.parameters().len(), self.1.parameters().len());
+        if out.len() != na + nb + 1 || !self.has_parameter_derivatives() {
+            return false;
+        }
+        if !self.0.parameter_derivatives(q, theta, &mut out[..na + 1]) {
+            return false;
+        }
+        let rest_a = out[na];
+        if !self.1.parameter_derivatives(q, theta, &mut out[na..]) {
+            return false;
+        }
+        let rest = &mut out[na + nb];
+        *rest = [rest[0] + rest_a[0], rest[1] + rest_a[1]];
+        true
+    }
+
+    fn parameter_values(&self, index: usize) -> Option<Vec<f64>> {
+        let na = self.0.parameters().len();
+        if index < na {
+            self.0.parameter_values(index)
+        } else {
+            self.1.parameter_values(index - na)
+        }
+    }
+
+    fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> Result<(), PsiError> {
+        let na = self.0.parameters().len();
+        if index < na {
+            self.0.set_parameter_values(index, values)
+        } else {
+            self.1.set_parameter_values(index - na, values)
+        }
     }
 }
 

@@ -4,7 +4,9 @@
 use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy};
+use hinge_core::energy::{
+    Accumulator, Energy, Parameter, ParameterOutput, check_parameter_output, unknown_parameter,
+};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, TriMesh};
@@ -53,6 +55,57 @@ impl Gravity {
 }
 
 impl Energy for Gravity {
+    /// `g`, the acceleration vector (3 values, m/s²): `E = −Σ m_i g·x_i`, so `∂E/∂g = −Σ m_i x_i` and
+    /// `∂∇_i E/∂g = −m_i I`.
+    fn parameters(&self) -> Vec<Parameter> {
+        vec![Parameter {
+            name: "g".into(),
+            len: 3,
+        }]
+    }
+
+    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
+        match name {
+            "g" => Ok(self.g.iter().copied().collect()),
+            _ => Err(unknown_parameter(name, &self.parameters())),
+        }
+    }
+
+    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
+        let p = &self.parameters()[0];
+        if name != p.name {
+            return Err(unknown_parameter(name, &self.parameters()));
+        }
+        hinge_core::energy::check_parameter_values(p, values)?;
+        self.g = Vector3::new(values[0], values[1], values[2]);
+        Ok(())
+    }
+
+    fn add_parameter_derivatives(
+        &mut self,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        if name != "g" {
+            return Err(unknown_parameter(name, &self.parameters()));
+        }
+        let n = self.masses.len();
+        hinge_core::mesh::check_same_vertex_count(n, x.len())?;
+        check_parameter_output(name, 3, n, out)?;
+        for (i, (&m, p)) in self.masses.iter().zip(x).enumerate() {
+            for c in 0..3 {
+                if !out.energy.is_empty() {
+                    out.energy[c] -= m * p[c];
+                }
+                if !out.lambda.is_empty() {
+                    out.contracted[c] -= m * out.lambda[3 * i + c];
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn name(&self) -> &str {
         "gravity"
     }

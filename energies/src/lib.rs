@@ -54,6 +54,58 @@ pub mod quadratic;
 pub mod spring;
 
 pub(crate) mod util {
+    use hinge_core::bending::{Parallelism, Request};
+    use hinge_core::energy::{Energy, ParameterOutput, check_parameter_output};
+    use hinge_core::nalgebra::Vector3;
+
+    /// The one value of scalar parameter `name`, finite and at least `min`.
+    pub fn scalar_value(name: &str, values: &[f64], min: f64) -> Result<f64, EvalError> {
+        match values {
+            [v] if v.is_finite() && *v >= min => Ok(*v),
+            [v] => Err(EvalError::Parameter {
+                name: name.to_string(),
+                message: format!("must be finite and at least {min}, got {v}"),
+            }),
+            _ => Err(EvalError::Parameter {
+                name: name.to_string(),
+                message: format!("is one value, {} given", values.len()),
+            }),
+        }
+    }
+
+    /// Derivatives with respect to a scalar parameter the energy is proportional to (`E(p) = p · E(1)`, so
+    /// `∂E/∂p = E(1)` and `∂∇E/∂p = ∇E(1)`): `unit` is the energy with that parameter set to 1.
+    pub fn add_proportional_derivatives(
+        unit: &mut dyn Energy,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        let n = unit.n_vertices();
+        hinge_core::mesh::check_same_vertex_count(n, x.len())?;
+        check_parameter_output(name, 1, n, out)?;
+        let pattern = SymmetricPattern::new(n, Vec::new())?;
+        let mut g = vec![0.0; 3 * n];
+        let mut acc = Accumulator {
+            pattern: &pattern,
+            gradient: &mut g,
+            hessian: &mut [],
+        };
+        let e = unit.add_to(x, Request::GRADIENT, Parallelism::Sequential, &mut acc)?;
+        if !out.energy.is_empty() {
+            out.energy[0] += e;
+        }
+        if !out.lambda.is_empty() {
+            out.contracted[0] += g.iter().zip(out.lambda).map(|(a, b)| a * b).sum::<f64>();
+        }
+        if !out.gradient.is_empty() {
+            for (o, v) in out.gradient.iter_mut().zip(&g) {
+                *o += v;
+            }
+        }
+        Ok(())
+    }
+
     use hinge_core::energy::Accumulator;
     use hinge_core::nalgebra::{Matrix2, Matrix3, Vector2};
     use hinge_core::pattern::SymmetricPattern;

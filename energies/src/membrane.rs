@@ -23,7 +23,7 @@
 use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy};
+use hinge_core::energy::{Accumulator, Energy, Parameter, ParameterOutput, unknown_parameter};
 use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, TriMesh};
@@ -31,6 +31,8 @@ use hinge_core::{EvalError, TriMesh};
 /// The StVK membrane over every triangle of a mesh.
 #[derive(Debug, Clone)]
 pub struct StvkMembrane {
+    young: f64,
+    poisson: f64,
     mu: f64,
     lambda: f64,
     thickness: f64,
@@ -57,6 +59,8 @@ impl StvkMembrane {
         crate::util::check_material("membrane", young, poisson, thickness)?;
         let rest_data = crate::util::triangle_rest_shapes(rest, "membrane")?;
         Ok(Self {
+            young,
+            poisson,
             mu: young / (2.0 * (1.0 + poisson)),
             lambda: young * poisson / (1.0 - poisson * poisson),
             thickness,
@@ -68,7 +72,71 @@ impl StvkMembrane {
     }
 }
 
+impl StvkMembrane {
+    /// Young's modulus (Pa).
+    pub fn young(&self) -> f64 {
+        self.young
+    }
+
+    /// The thickness (m).
+    pub fn thickness(&self) -> f64 {
+        self.thickness
+    }
+
+    fn set_young(&mut self, young: f64) {
+        self.young = young;
+        self.mu = young / (2.0 * (1.0 + self.poisson));
+        self.lambda = young * self.poisson / (1.0 - self.poisson * self.poisson);
+    }
+}
+
 impl Energy for StvkMembrane {
+    /// `young` (Pa, ≥ 0) and `thickness` (m, > 0): the energy is proportional to each.
+    fn parameters(&self) -> Vec<Parameter> {
+        ["young", "thickness"]
+            .map(|n| Parameter {
+                name: n.into(),
+                len: 1,
+            })
+            .to_vec()
+    }
+
+    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
+        match name {
+            "young" => Ok(vec![self.young]),
+            "thickness" => Ok(vec![self.thickness]),
+            _ => Err(unknown_parameter(name, &self.parameters())),
+        }
+    }
+
+    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
+        match name {
+            "young" => self.set_young(crate::util::scalar_value(name, values, 0.0)?),
+            "thickness" => {
+                let h = crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
+                self.thickness = h;
+            }
+            _ => return Err(unknown_parameter(name, &self.parameters())),
+        }
+        Ok(())
+    }
+
+    fn add_parameter_derivatives(
+        &mut self,
+        x: &[Vector3<f64>],
+        name: &str,
+        out: &mut ParameterOutput,
+    ) -> Result<(), EvalError> {
+        let mut unit = self.clone();
+        unit.slots.clear();
+        match name {
+            "young" => unit.set_young(1.0),
+            "thickness" => unit.thickness = 1.0,
+            _ => return Err(unknown_parameter(name, &self.parameters())),
+        }
+        crate::util::add_proportional_derivatives(&mut unit, x, name, out)
+    }
+
     fn name(&self) -> &str {
         "membrane"
     }

@@ -358,45 +358,7 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
         }
     };
     let op_code = |id: Id, operand: &dyn Fn(Id) -> TokenStream| -> TokenStream {
-        match arena.node(id) {
-            Node::Theta => quote!(theta),
-            Node::Add(a, b) => bin(operand(a), quote!(+), operand(b)),
-            Node::Sub(a, b) => bin(operand(a), quote!(-), operand(b)),
-            Node::Mul(a, b) => bin(operand(a), quote!(*), operand(b)),
-            Node::Div(a, b) => bin(operand(a), quote!(/), operand(b)),
-            Node::Neg(a) => {
-                let x = operand(a);
-                quote!((-#x))
-            }
-            Node::Powi(a, 2) => {
-                let x = operand(a);
-                quote!((#x * #x))
-            }
-            Node::Powi(a, n) => {
-                let x = operand(a);
-                quote!((#x).powi(#n))
-            }
-            Node::Powf(a, b) => {
-                let (x, y) = (operand(a), operand(b));
-                quote!((#x).powf(#y))
-            }
-            Node::Call(f, a) => {
-                let x = operand(a);
-                let m = format_ident!("{}", f.name());
-                quote!((#x).#m())
-            }
-            Node::Atan2(a, b) => {
-                let (y, x) = (operand(a), operand(b));
-                quote!((#y).atan2(#x))
-            }
-            Node::Select(c, l, r, a, b) => {
-                let op = cmp_tokens(c);
-                let (l, r, a, b) = (operand(l), operand(r), operand(a), operand(b));
-                quote!((if #l #op #r { #a } else { #b }))
-            }
-            Node::Const(c) => lit(c),
-            Node::Var(_) => operand(id),
-        }
+        node_code(arena, id, operand)
     };
     let lets: Vec<TokenStream> = order
         .iter()
@@ -424,6 +386,7 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     let lets_d1 = lets_for(&[psi, d1]);
     let (out_psi, out_d1) = (operand(psi), operand(d1));
     let d2_zero = compiled.d2_is_zero();
+    let parameters = parameter_methods(&compiled, fields);
 
     // Generic ψ for num-dual (ψ root only), θ-dependent nodes as D, θ-free ones as f64.
     let dual_order = compiled.order_for(&[psi]);
@@ -545,7 +508,181 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
             #(#dual_lets)*
             #dual_result
         }
+        #parameters
     })
+}
+
+/// The code of one scheduled node, its operands spelled by `operand`.
+fn node_code(arena: &Arena, id: Id, operand: &dyn Fn(Id) -> TokenStream) -> TokenStream {
+    match arena.node(id) {
+        Node::Theta => quote!(theta),
+        Node::Add(a, b) => bin(operand(a), quote!(+), operand(b)),
+        Node::Sub(a, b) => bin(operand(a), quote!(-), operand(b)),
+        Node::Mul(a, b) => bin(operand(a), quote!(*), operand(b)),
+        Node::Div(a, b) => bin(operand(a), quote!(/), operand(b)),
+        Node::Neg(a) => {
+            let x = operand(a);
+            quote!((-#x))
+        }
+        Node::Powi(a, 2) => {
+            let x = operand(a);
+            quote!((#x * #x))
+        }
+        Node::Powi(a, n) => {
+            let x = operand(a);
+            quote!((#x).powi(#n))
+        }
+        Node::Powf(a, b) => {
+            let (x, y) = (operand(a), operand(b));
+            quote!((#x).powf(#y))
+        }
+        Node::Call(f, a) => {
+            let x = operand(a);
+            let m = format_ident!("{}", f.name());
+            quote!((#x).#m())
+        }
+        Node::Atan2(a, b) => {
+            let (y, x) = (operand(a), operand(b));
+            quote!((#y).atan2(#x))
+        }
+        Node::Select(c, l, r, a, b) => {
+            let op = cmp_tokens(c);
+            let (l, r, a, b) = (operand(l), operand(r), operand(a), operand(b));
+            quote!((if #l #op #r { #a } else { #b }))
+        }
+        Node::Const(c) => lit(c),
+        Node::Var(_) => operand(id),
+    }
+}
+
+/// The parameter-derivative methods of [`HingePsi`](hinge_core::psi::HingePsi): `∂ψ/∂p`, `∂ψ′/∂p` for every
+/// field and for θ̄, computed from the fields and the hinge's quantities (nothing hoisted), and the field
+/// getters and setters fitting uses.
+fn parameter_methods(compiled: &Compiled, fields: &[Field]) -> TokenStream {
+    let n_fields = fields.len();
+    let vars: Vec<usize> = (0..=n_fields).collect();
+    let pd = compiled.parameter_derivatives(&vars);
+    let arena = &pd.arena;
+    let operand = |id: Id| -> TokenStream {
+        match arena.node(id) {
+            Node::Const(c) => lit(c),
+            Node::Theta => quote!(theta),
+            Node::Var(i) => {
+                let v = format_ident!("v{}", i);
+                quote!(#v)
+            }
+            _ => {
+                let t = format_ident!("t{}", id.0);
+                quote!(#t)
+            }
+        }
+    };
+    let used = pd.used_vars();
+    let var_lets: Vec<TokenStream> = (0..n_fields + PROVIDED.len())
+        .filter(|i| used >> i & 1 == 1)
+        .map(|i| {
+            let v = format_ident!("v{}", i);
+            if i < n_fields {
+                let f = &fields[i].ident;
+                if fields[i].per_hinge {
+                    quote!(let #v: f64 = self.#f.get(q.hinge).copied().unwrap_or(f64::NAN);)
+                } else {
+                    quote!(let #v: f64 = self.#f;)
+                }
+            } else {
+                let p = format_ident!("{}", PROVIDED[i - n_fields]);
+                quote!(let #v: f64 = q.#p;)
+            }
+        })
+        .collect();
+    let lets: Vec<TokenStream> = pd
+        .order
+        .iter()
+        .map(|&id| {
+            let t = format_ident!("t{}", id.0);
+            let code = node_code(arena, id, &operand);
+            quote!(let #t: f64 = #code;)
+        })
+        .collect();
+    let outs: Vec<TokenStream> = pd
+        .roots
+        .iter()
+        .enumerate()
+        .map(|(k, [a, b])| {
+            let (a, b) = (operand(*a), operand(*b));
+            quote!(out[#k] = [#a, #b];)
+        })
+        .collect();
+    let len = n_fields + 1;
+    let infos: Vec<TokenStream> = fields
+        .iter()
+        .map(|f| {
+            let name = f.ident.to_string();
+            let per_hinge = f.per_hinge;
+            quote!(::hinge_core::__private::PsiParameter { name: #name.to_string(), per_hinge: #per_hinge })
+        })
+        .collect();
+    let getters: Vec<TokenStream> = fields
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let id = &f.ident;
+            if f.per_hinge {
+                quote!(#k => ::core::option::Option::Some(self.#id.clone()),)
+            } else {
+                quote!(#k => ::core::option::Option::Some(::std::vec![self.#id]),)
+            }
+        })
+        .collect();
+    let setters: Vec<TokenStream> = fields
+        .iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let id = &f.ident;
+            let name = id.to_string();
+            if f.per_hinge {
+                quote!(#k => { self.#id = values.to_vec(); ::core::result::Result::Ok(()) })
+            } else {
+                quote!(#k => match values {
+                    [v] => { self.#id = *v; ::core::result::Result::Ok(()) }
+                    _ => ::core::result::Result::Err(::hinge_core::__private::scalar_length_error(#name, values.len())),
+                })
+            }
+        })
+        .collect();
+    quote! {
+        fn has_parameter_derivatives(&self) -> bool {
+            true
+        }
+        fn parameters(&self) -> ::std::vec::Vec<::hinge_core::__private::PsiParameter> {
+            ::std::vec![#(#infos),*]
+        }
+        #[allow(unused_variables, clippy::all)]
+        fn parameter_derivatives(&self, q: &::hinge_core::__private::HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
+            if out.len() != #len {
+                return false;
+            }
+            #(#var_lets)*
+            #(#lets)*
+            #(#outs)*
+            true
+        }
+        fn parameter_values(&self, index: usize) -> ::core::option::Option<::std::vec::Vec<f64>> {
+            match index {
+                #(#getters)*
+                _ => ::core::option::Option::None,
+            }
+        }
+        fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> ::core::result::Result<(), ::hinge_core::__private::PsiError> {
+            match index {
+                #(#setters)*
+                _ => ::core::result::Result::Err(::hinge_core::__private::PsiError {
+                    name: ::std::format!("#{index}").into(),
+                    message: ::std::format!("the energy has {} parameters", #n_fields),
+                }),
+            }
+        }
+    }
 }
 
 fn cmp_tokens(c: Cmp) -> TokenStream {

@@ -39,6 +39,7 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 
+pub mod adjoint;
 pub mod explicit;
 pub mod linear;
 pub mod newton;

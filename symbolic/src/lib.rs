@@ -30,7 +30,7 @@ pub mod text;
 
 use std::fmt;
 
-pub use program::{Compiled, Program, Scalar, Tape};
+pub use program::{Compiled, ParameterDerivatives, Program, Scalar, Tape};
 pub use text::{Diagnostic, Span};
 
 /// A ψ string that did not compile: every error found, in source order.

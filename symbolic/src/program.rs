@@ -76,6 +76,67 @@ impl Compiled {
     }
 }
 
+/// Parameter derivatives of a compiled ψ: for each chosen input variable v (a field, a run-time parameter or a
+/// provided name such as `theta_bar`), `∂ψ/∂v` and `∂ψ′/∂v` with θ and the other variables held fixed, in an
+/// extended copy of the arena, scheduled over θ and every variable (nothing hoisted: fitting evaluates them
+/// once per hinge and solve, not per Newton iteration). Equal subexpressions are shared as everywhere else.
+#[derive(Debug, Clone)]
+pub struct ParameterDerivatives {
+    /// The variables, in the order of [`ParameterDerivatives::roots`].
+    pub vars: Vec<usize>,
+    /// The arena: [`Compiled::arena`] plus the derivative nodes.
+    pub arena: Arena,
+    /// `[∂ψ/∂v, ∂ψ′/∂v]` for each of [`ParameterDerivatives::vars`].
+    pub roots: Vec<[Id; 2]>,
+    /// Every non-leaf node the roots need, operands first (θ, variables and constants are leaves).
+    pub order: Vec<Id>,
+    /// Total number of variables (inputs plus the provided names).
+    pub n_vars: usize,
+}
+
+impl Compiled {
+    /// `∂ψ/∂v` and `∂ψ′/∂v` for each of `vars` (see [`ParameterDerivatives`]).
+    pub fn parameter_derivatives(&self, vars: &[usize]) -> ParameterDerivatives {
+        let mut arena = self.arena.clone();
+        let [psi, d1, _] = self.roots;
+        let roots: Vec<[Id; 2]> = vars
+            .iter()
+            .map(|&v| [arena.diff_var(psi, v), arena.diff_var(d1, v)])
+            .collect();
+        let flat: Vec<Id> = roots.iter().flatten().copied().collect();
+        let order = free_schedule(&arena, &flat);
+        ParameterDerivatives {
+            vars: vars.to_vec(),
+            arena,
+            roots,
+            order,
+            n_vars: self.n_vars(),
+        }
+    }
+}
+
+impl ParameterDerivatives {
+    /// Bit set of the variables the derivatives read.
+    pub fn used_vars(&self) -> u64 {
+        self.roots
+            .iter()
+            .flatten()
+            .fold(0u64, |acc, r| acc | self.arena.vars[r.0 as usize])
+    }
+
+    /// A register program reading `[θ, v_0, …, v_{n_vars−1}]` and writing `∂ψ/∂v, ∂ψ′/∂v` for every chosen
+    /// variable in turn (`2 · vars.len()` outputs). `None` beyond [`MAX_REGISTERS`] registers.
+    pub fn program(&self) -> Option<Program> {
+        let mut arena = self.arena.clone();
+        let mut inputs = vec![arena.theta()];
+        for i in 0..self.n_vars {
+            inputs.push(arena.var(i));
+        }
+        let flat: Vec<Id> = self.roots.iter().flatten().copied().collect();
+        Program::new(&arena, &inputs, &self.order, &flat)
+    }
+}
+
 /// Nodes reachable from `roots` through θ-dependent nodes, in post-order (operands first), and the θ-free
 /// non-constant nodes where that walk stops.
 fn schedule(arena: &Arena, roots: &[Id]) -> (Vec<Id>, Vec<Id>) {

@@ -1,5 +1,6 @@
 //! A small symbolic engine: a hash-consed expression arena (so equal subexpressions are one node — common
-//! subexpression elimination for free), simplifying constructors, and differentiation with respect to θ.
+//! subexpression elimination for free), simplifying constructors, and differentiation with respect to θ or to
+//! any input variable (parameter derivatives).
 //!
 //! Non-smooth nodes (`Select`, which `abs`, `min`, `max` and `if` lower to) differentiate branch-wise: the
 //! derivative at a switch point is the derivative of the branch the condition selects there (for `abs(x)`
@@ -148,7 +149,14 @@ pub struct Arena {
     /// Bit set of the vars a node depends on (vars are few: fields + six provided names; ≤ 64 supported).
     pub vars: Vec<u64>,
     index: HashMap<Key, Id>,
-    derivative: HashMap<Id, Id>,
+    derivative: HashMap<(Id, Wrt), Id>,
+}
+
+/// What a derivative is taken with respect to.
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Debug)]
+enum Wrt {
+    Theta,
+    Var(usize),
 }
 
 impl Arena {
@@ -403,59 +411,89 @@ impl Arena {
 
     /// dψ/dθ of node `id`, simplified and interned (recursive: the depth is bounded by the front ends).
     pub fn diff(&mut self, id: Id) -> Id {
-        if !self.depends_on_theta(id) {
+        self.derivative(id, Wrt::Theta)
+    }
+
+    /// ∂/∂v of node `id` for input variable `v` (a field, a run-time parameter or a provided name such as
+    /// `theta_bar`), θ and every other variable held fixed: what parameter derivatives (fitting) need.
+    /// Simplified and interned like [`Arena::diff`]; `Select` differentiates branch-wise the same way.
+    pub fn diff_var(&mut self, id: Id, v: usize) -> Id {
+        self.derivative(id, Wrt::Var(v))
+    }
+
+    /// Whether `id` depends on what `wrt` names.
+    fn depends_on(&self, id: Id, wrt: Wrt) -> bool {
+        match wrt {
+            Wrt::Theta => self.depends_on_theta(id),
+            Wrt::Var(v) => v < 64 && self.vars[id.0 as usize] >> v & 1 == 1,
+        }
+    }
+
+    fn derivative(&mut self, id: Id, wrt: Wrt) -> Id {
+        if !self.depends_on(id, wrt) {
             return self.constant(0.0);
         }
-        if let Some(&d) = self.derivative.get(&id) {
+        if let Some(&d) = self.derivative.get(&(id, wrt)) {
             return d;
         }
         let d = match self.node(id) {
-            Node::Const(_) | Node::Var(_) => self.constant(0.0),
-            Node::Theta => self.constant(1.0),
+            Node::Const(_) => self.constant(0.0),
+            Node::Theta => self.constant(if wrt == Wrt::Theta { 1.0 } else { 0.0 }),
+            Node::Var(i) => self.constant(if wrt == Wrt::Var(i) { 1.0 } else { 0.0 }),
             Node::Add(a, b) => {
-                let (da, db) = (self.diff(a), self.diff(b));
+                let (da, db) = (self.derivative(a, wrt), self.derivative(b, wrt));
                 self.add(da, db)
             }
             Node::Sub(a, b) => {
-                let (da, db) = (self.diff(a), self.diff(b));
+                let (da, db) = (self.derivative(a, wrt), self.derivative(b, wrt));
                 self.sub(da, db)
             }
             Node::Mul(a, b) => {
-                let (da, db) = (self.diff(a), self.diff(b));
+                let (da, db) = (self.derivative(a, wrt), self.derivative(b, wrt));
                 let l = self.mul(da, b);
                 let r = self.mul(a, db);
                 self.add(l, r)
             }
             Node::Div(a, b) => {
                 // (a/b)′ = (a′ − (a/b)·b′) / b
-                let (da, db) = (self.diff(a), self.diff(b));
+                let (da, db) = (self.derivative(a, wrt), self.derivative(b, wrt));
                 let t = self.mul(id, db);
                 let num = self.sub(da, t);
                 self.div(num, b)
             }
             Node::Neg(a) => {
-                let da = self.diff(a);
+                let da = self.derivative(a, wrt);
                 self.neg(da)
             }
             Node::Powi(a, n) => {
                 // n · a^(n−1) · a′
-                let da = self.diff(a);
+                let da = self.derivative(a, wrt);
                 let p = self.powi(a, n - 1);
                 let c = self.constant(n as f64);
                 let cp = self.mul(c, p);
                 self.mul(cp, da)
             }
             Node::Powf(a, b) => {
-                // b · a^(b−1) · a′ (b θ-free, checked by the parser)
-                let da = self.diff(a);
+                // b · a^(b−1) · a′ (+ a^b · ln(a) · b′ when the exponent depends on the variable: it never
+                // does for θ, which the parser keeps out of exponents)
+                let da = self.derivative(a, wrt);
                 let one = self.constant(1.0);
                 let bm1 = self.sub(b, one);
                 let p = self.powf(a, bm1);
                 let bp = self.mul(b, p);
-                self.mul(bp, da)
+                let base = self.mul(bp, da);
+                let db = self.derivative(b, wrt);
+                if self.as_const(db) == Some(0.0) {
+                    base
+                } else {
+                    let ln = self.call(Func::Ln, a);
+                    let t = self.mul(id, ln);
+                    let e = self.mul(t, db);
+                    self.add(base, e)
+                }
             }
             Node::Call(f, a) => {
-                let da = self.diff(a);
+                let da = self.derivative(a, wrt);
                 let outer = match f {
                     Func::Sqrt => {
                         // 1 / (2 sqrt(a))
@@ -495,14 +533,26 @@ impl Arena {
                 };
                 self.mul(outer, da)
             }
-            // θ-free by construction (the front end rejects θ in its operands): reached only if not.
-            Node::Atan2(..) => self.constant(f64::NAN),
+            Node::Atan2(y, x) => match wrt {
+                // θ-free by construction (the front end rejects θ in its operands): reached only if not.
+                Wrt::Theta => self.constant(f64::NAN),
+                // (x·y′ − y·x′) / (x² + y²)
+                Wrt::Var(_) => {
+                    let (dy, dx) = (self.derivative(y, wrt), self.derivative(x, wrt));
+                    let l = self.mul(x, dy);
+                    let r = self.mul(y, dx);
+                    let num = self.sub(l, r);
+                    let (x2, y2) = (self.powi(x, 2), self.powi(y, 2));
+                    let den = self.add(x2, y2);
+                    self.div(num, den)
+                }
+            },
             Node::Select(c, l, r, a, b) => {
-                let (da, db) = (self.diff(a), self.diff(b));
+                let (da, db) = (self.derivative(a, wrt), self.derivative(b, wrt));
                 self.select(c, l, r, da, db)
             }
         };
-        self.derivative.insert(id, d);
+        self.derivative.insert((id, wrt), d);
         d
     }
 

@@ -172,8 +172,20 @@ pub mod tree {
         theta: D,
         env: &[(&str, f64)],
     ) -> D {
+        let env: Vec<(&str, D)> = env.iter().map(|&(n, v)| (n, D::from(v))).collect();
         let mut lets: Vec<(String, D)> = Vec::new();
-        walk(e, theta, env, &mut lets)
+        walk(e, theta, &env, false, &mut lets)
+    }
+
+    /// ψ with dual θ-free values too (parameter derivatives): exponents and `atan2` operands are
+    /// differentiated as well, where [`eval`] takes their real parts (θ never reaches them).
+    pub fn eval_dual_env<D: DualNum<Primitive = f64> + Copy>(
+        e: &Expr<Span>,
+        theta: D,
+        env: &[(&str, D)],
+    ) -> D {
+        let mut lets: Vec<(String, D)> = Vec::new();
+        walk(e, theta, env, true, &mut lets)
     }
 
     fn holds(c: Cmp, l: f64, r: f64) -> bool {
@@ -196,7 +208,8 @@ pub mod tree {
     fn walk<D: DualNum<Primitive = f64> + Copy>(
         e: &Expr<Span>,
         theta: D,
-        env: &[(&str, f64)],
+        env: &[(&str, D)],
+        dual_env: bool,
         lets: &mut Vec<(String, D)>,
     ) -> D {
         match e {
@@ -209,7 +222,7 @@ pub mod tree {
                     return theta;
                 }
                 if let Some((_, v)) = env.iter().find(|(n, _)| n == name) {
-                    return D::from(*v);
+                    return *v;
                 }
                 let n = name.replace(' ', "");
                 match n.rsplit("::").next() {
@@ -218,9 +231,12 @@ pub mod tree {
                     _ => panic!("unknown name {name}"),
                 }
             }
-            Expr::Neg { arg, .. } => -walk(arg, theta, env, lets),
+            Expr::Neg { arg, .. } => -walk(arg, theta, env, dual_env, lets),
             Expr::Binary { op, lhs, rhs, .. } => {
-                let (a, b) = (walk(lhs, theta, env, lets), walk(rhs, theta, env, lets));
+                let (a, b) = (
+                    walk(lhs, theta, env, dual_env, lets),
+                    walk(rhs, theta, env, dual_env, lets),
+                );
                 match op {
                     BinOp::Add => a + b,
                     BinOp::Sub => a - b,
@@ -231,10 +247,10 @@ pub mod tree {
             Expr::Block { lets: ls, value } => {
                 let depth = lets.len();
                 for l in ls {
-                    let v = walk(&l.value, theta, env, lets);
+                    let v = walk(&l.value, theta, env, dual_env, lets);
                     lets.push((l.name.clone(), v));
                 }
-                let r = walk(value, theta, env, lets);
+                let r = walk(value, theta, env, dual_env, lets);
                 lets.truncate(depth);
                 r
             }
@@ -246,16 +262,19 @@ pub mod tree {
                 otherwise,
                 ..
             } => {
-                let (l, r) = (walk(lhs, theta, env, lets), walk(rhs, theta, env, lets));
+                let (l, r) = (
+                    walk(lhs, theta, env, dual_env, lets),
+                    walk(rhs, theta, env, dual_env, lets),
+                );
                 if holds(*cmp, l.re(), r.re()) {
-                    walk(then, theta, env, lets)
+                    walk(then, theta, env, dual_env, lets)
                 } else {
-                    walk(otherwise, theta, env, lets)
+                    walk(otherwise, theta, env, dual_env, lets)
                 }
             }
             Expr::Call { func, args, .. } => {
-                let x = walk(&args[0], theta, env, lets);
-                let y = || walk(&args[1], theta, env, &mut lets.clone());
+                let x = walk(&args[0], theta, env, dual_env, lets);
+                let y = || walk(&args[1], theta, env, dual_env, &mut lets.clone());
                 match func.as_str() {
                     "sqrt" => x.sqrt(),
                     "sin" => x.sin(),
@@ -283,7 +302,13 @@ pub mod tree {
                         if x.re() >= y.re() { x } else { y }
                     }
                     "powi" | "pow" if int(&args[1]).is_some() => x.powi(int(&args[1]).unwrap_or(1)),
+                    "pow" | "powf" if dual_env => x.powd(y()),
                     "pow" | "powf" => x.powf(y().re()),
+                    "atan2" if dual_env => {
+                        // The value from atan2, the derivatives from atan(x / y) (equal off the axis).
+                        let q = (x / y()).atan();
+                        q - D::from(q.re()) + D::from(x.re().atan2(y().re()))
+                    }
                     "atan2" => D::from(x.re().atan2(y().re())),
                     other => panic!("unknown function {other}"),
                 }

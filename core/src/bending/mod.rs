@@ -298,6 +298,52 @@ impl<P: HingePsi> BendingModel<P> {
         Ok(())
     }
 
+    /// Sets parameter `index` of the energy's [`HingePsi::parameters`] (fitting) and re-hoists every hinge's
+    /// parameters. Unlike [`BendingModel::update_psi`] it needs no `Clone` energy: the old value is kept to
+    /// put back on error.
+    ///
+    /// # Errors
+    /// [`EvalError::Psi`] when the energy refuses the values or no longer fits the mesh;
+    /// [`EvalError::Pattern`] when it gains a ψ″ the pattern has no wing couplings for. On error nothing
+    /// changes.
+    pub fn set_psi_parameter(&mut self, index: usize, values: &[f64]) -> Result<(), EvalError> {
+        let old = self.psi.parameter_values(index).ok_or_else(|| {
+            EvalError::Psi(crate::psi::PsiError {
+                name: format!("#{index}").into(),
+                message: format!("the energy has {} parameters", self.psi.parameters().len()),
+            })
+        })?;
+        self.psi.set_parameter_values(index, values)?;
+        let check = self.psi.validate(self.rest.len()).map_err(EvalError::from).and_then(|()| {
+            if !self.psi.second_derivative_vanishes() && !self.couples_wings(self.hessian_mode) {
+                Err(EvalError::Pattern {
+                    message: "the changed energy has ψ″ ≠ 0 but the model was built for ψ″ ≡ 0 (no wing couplings); build a new model".into(),
+                })
+            } else {
+                Ok(())
+            }
+        });
+        if let Err(e) = check {
+            // The old values were accepted before: putting them back cannot fail.
+            let _ = self.psi.set_parameter_values(index, &old);
+            return Err(e);
+        }
+        self.rehoist();
+        Ok(())
+    }
+
+    /// What ψ of hinge `hinge` is evaluated with: its rest quantities and, once a step is set, θ at the end
+    /// of the previous step and the step size. `None` beyond the hinge count.
+    pub fn hinge_quantities(&self, hinge: usize) -> Option<HingeQuantities> {
+        let r = self.rest.get(hinge)?;
+        let mut q = HingeQuantities::at_rest(hinge, r);
+        if let Some((thetas, dt)) = &self.step {
+            q.theta_prev = thetas[hinge];
+            q.dt = *dt;
+        }
+        Some(q)
+    }
+
     /// Sets every hinge's rest angle θ̄ (hinge order) and re-hoists the parameters that depend on it (the
     /// other rest quantities stay). Bending plasticity updates θ̄ this way.
     ///

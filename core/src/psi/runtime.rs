@@ -26,11 +26,13 @@
 
 use std::borrow::Cow;
 
-use hinge_symbolic::program::{Scalar, Tape};
+use std::sync::{Arc, OnceLock};
+
+use hinge_symbolic::program::{Compiled, Program, Scalar, Tape};
 use hinge_symbolic::sym::Func;
 use num_dual::DualNum;
 
-use super::{HingePsi, HingeQuantities, PsiError};
+use super::{HingePsi, HingeQuantities, PsiError, PsiParameter};
 
 pub use hinge_symbolic::{Diagnostic, ParseError, Span};
 
@@ -104,6 +106,11 @@ pub struct RuntimePsi<const N: usize = DEFAULT_CAPACITY> {
     tape: Tape,
     d2_zero: bool,
     uses_step: bool,
+    /// ψ, ψ′, ψ″ as compiled (kept for the parameter derivatives, compiled on first use).
+    compiled: Arc<Compiled>,
+    /// `∂ψ/∂p, ∂ψ′/∂p` for every parameter, then θ̄ (see [`HingePsi::parameter_derivatives`]); `None` inside
+    /// when the program is too large.
+    derivatives: OnceLock<Option<Program>>,
 }
 
 impl RuntimePsi {
@@ -153,6 +160,8 @@ impl<const N: usize> RuntimePsi<N> {
             d2_zero: c.d2_is_zero(),
             uses_step: c.uses_step(),
             tape,
+            compiled: Arc::new(src.compiled),
+            derivatives: OnceLock::new(),
         })
     }
 
@@ -301,6 +310,71 @@ impl<const N: usize> HingePsi for RuntimePsi<N> {
         let mut out = [0.0; 2];
         self.tape.first.run_theta(theta, p, &mut out);
         out
+    }
+
+    fn has_parameter_derivatives(&self) -> bool {
+        true
+    }
+
+    fn parameters(&self) -> Vec<PsiParameter> {
+        self.parameters()
+            .map(|(name, v)| PsiParameter {
+                name: name.to_string(),
+                per_hinge: matches!(v, ParamValue::PerHinge(_)),
+            })
+            .collect()
+    }
+
+    fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
+        let n = self.names.len();
+        if out.len() != n + 1 {
+            return false;
+        }
+        let program = self.derivatives.get_or_init(|| {
+            // The parameters are vars 0..n, θ̄ the first provided name after them.
+            let vars: Vec<usize> = (0..=n).collect();
+            self.compiled.parameter_derivatives(&vars).program()
+        });
+        let Some(program) = program else {
+            return false;
+        };
+        let mut buf = [0.0; 65];
+        buf[0] = theta;
+        let mut vars = [0.0; 64];
+        let k = inputs(&self.values, q, &mut vars);
+        buf[1..=k].copy_from_slice(&vars[..k]);
+        let mut flat = [0.0; 128];
+        program.run(&buf[..=k], &mut flat[..2 * (n + 1)]);
+        for (o, d) in out.iter_mut().zip(flat.chunks_exact(2)) {
+            *o = [d[0], d[1]];
+        }
+        true
+    }
+
+    fn parameter_values(&self, index: usize) -> Option<Vec<f64>> {
+        self.values.get(index).map(|v| match v {
+            ParamValue::Scalar(x) => vec![*x],
+            ParamValue::PerHinge(xs) => xs.clone(),
+        })
+    }
+
+    fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> Result<(), PsiError> {
+        let Some(v) = self.values.get_mut(index) else {
+            return Err(PsiError {
+                name: format!("#{index}").into(),
+                message: format!("the ψ expression has {} parameters", self.names.len()),
+            });
+        };
+        match v {
+            ParamValue::Scalar(x) => match values {
+                [y] => *x = *y,
+                _ => {
+                    return Err(super::scalar_length_error(&self.names[index], values.len()));
+                }
+            },
+            ParamValue::PerHinge(xs) => *xs = values.to_vec(),
+        }
+        Ok(())
     }
 
     fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D {

@@ -1,0 +1,774 @@
+//! Derivatives of static equilibria with respect to parameters (adjoint method), and fitting parameters to a
+//! measured shape.
+//!
+//! An equilibrium `x*(p)` satisfies `g(x*, p) = ∇ₓE(x*, p) = 0` on the free degrees of freedom (pins
+//! eliminated). For a loss `L(x*)`, differentiating `g(x*(p), p) = 0` gives `H dx*/dp = −∂g/∂p`, so
+//!
+//! ```text
+//! dL/dp = ∂L/∂x · dx*/dp = −λᵀ ∂g/∂p,    H λ = ∂L/∂x,
+//! ```
+//!
+//! with `H` the **exact** Hessian at `x*` restricted to the free dofs (λ is zero on pinned dofs). [`Adjoint`]
+//! assembles and factors `H` itself with a sparse Cholesky: Newton's last factorization may be of a projected
+//! or shifted Hessian and cannot be reused. A Cholesky failure means `x*` is not a strict minimum (a
+//! buckled or flat direction): [`AdjointError::NotMinimum`], never a silently wrong gradient. One adjoint
+//! gradient costs one assembly, one factorization and one solve, plus a pass per parameter over its
+//! energy's elements ([`hinge_core::energy::Energy::add_parameter_derivatives`]).
+//!
+//! [`Fit`] minimises a loss over chosen parameters with L-BFGS on `s = ln u` (positive parameters stay
+//! positive), each evaluation an equilibrium solved by [`Newton`] from the previous one and its gradient
+//! by the adjoint; see [`Fit::run`].
+
+use hinge_core::EvalError;
+use hinge_core::bending::{Parallelism, Request};
+use hinge_core::energy::{ParameterOutput, System, SystemEvaluation};
+use hinge_core::nalgebra::Vector3;
+use hinge_energies::pins::Pins;
+
+use crate::linear::{FaerLlt, LinearError, LinearSolver};
+use crate::newton::{Newton, Reduced, SolverError};
+
+/// Why a sensitivity or a fit could not be computed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum AdjointError {
+    /// Evaluating the system, or a parameter derivative, failed.
+    #[error(transparent)]
+    Eval(#[from] EvalError),
+    /// The exact Hessian at the state is not positive definite on the free dofs.
+    #[error(
+        "the exact Hessian at the equilibrium is not positive definite (free dof {dof}, vertex {vertex}): the state is not a strict minimum, its sensitivities are undefined"
+    )]
+    NotMinimum {
+        /// The vertex whose dof the factorization failed at.
+        vertex: usize,
+        /// The dof (3·vertex + coordinate).
+        dof: usize,
+    },
+    /// The linear solver failed otherwise.
+    #[error("linear solve: {0}")]
+    Linear(#[from] LinearError),
+    /// An input of the wrong length.
+    #[error("{what} has length {got}, expected {expected}")]
+    Length {
+        /// Which input.
+        what: &'static str,
+        /// Length given.
+        got: usize,
+        /// Length needed.
+        expected: usize,
+    },
+    /// [`Adjoint::solve`] or a gradient before a successful [`Adjoint::factor`].
+    #[error("the Hessian has not been factored at this state")]
+    NotFactored,
+    /// An equilibrium solve of a fit failed.
+    #[error("equilibrium: {0}")]
+    Equilibrium(#[from] SolverError),
+    /// A fit set-up that cannot work (named).
+    #[error("{0}")]
+    Setup(String),
+}
+
+/// The exact-Hessian factorization of a system at a state, with pins eliminated, and the solves and
+/// parameter gradients built on it (see the module documentation).
+pub struct Adjoint {
+    reduced: Reduced,
+    solver: FaerLlt,
+    values: Vec<f64>,
+    eval: SystemEvaluation,
+    rhs: Vec<f64>,
+    lambda: Vec<f64>,
+    n_vertices: usize,
+    factored: bool,
+}
+
+impl std::fmt::Debug for Adjoint {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Adjoint")
+            .field("free_dofs", &self.reduced.dofs.len())
+            .field("factored", &self.factored)
+            .finish()
+    }
+}
+
+impl Adjoint {
+    /// Binds to `system`'s pattern with `pins` eliminated (symbolic analysis once).
+    ///
+    /// # Errors
+    /// [`AdjointError::Length`] when the pins are for another vertex count; [`AdjointError::Linear`].
+    pub fn new(system: &System, pins: &Pins) -> Result<Self, AdjointError> {
+        let n = system.n_vertices();
+        let free = pins.free_dofs();
+        if free.len() != 3 * n {
+            return Err(AdjointError::Length {
+                what: "the pins' dofs",
+                got: free.len(),
+                expected: 3 * n,
+            });
+        }
+        let reduced = Reduced::new(system.pattern(), &free);
+        let mut solver = FaerLlt::default();
+        solver.analyze(&reduced.csc)?;
+        Ok(Self {
+            values: vec![0.0; reduced.source.len()],
+            rhs: vec![0.0; reduced.dofs.len()],
+            lambda: vec![0.0; 3 * n],
+            eval: system.new_output(),
+            reduced,
+            solver,
+            n_vertices: n,
+            factored: false,
+        })
+    }
+
+    /// Assembles the exact Hessian of `system` at `x` and factors it on the free dofs.
+    ///
+    /// # Errors
+    /// [`AdjointError::NotMinimum`] when it is not positive definite; evaluation errors.
+    pub fn factor(&mut self, system: &mut System, x: &[Vector3<f64>]) -> Result<(), AdjointError> {
+        self.factored = false;
+        let request = Request {
+            value: false,
+            gradient: false,
+            hessian: true,
+            definite: false,
+        };
+        system.evaluate_into(x, request, Parallelism::Rayon, &mut self.eval)?;
+        for (v, &k) in self.values.iter_mut().zip(&self.reduced.source) {
+            *v = self.eval.hessian[k];
+        }
+        match self.solver.factor(&self.values) {
+            Ok(()) => {}
+            Err(LinearError::NotPositiveDefinite { index }) => {
+                let dof = self.reduced.dofs.get(index).copied().unwrap_or(0);
+                return Err(AdjointError::NotMinimum {
+                    vertex: dof / 3,
+                    dof,
+                });
+            }
+            Err(e) => return Err(e.into()),
+        }
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves `H λ = b` on the free dofs (`b`: `3n` entries, its pinned entries ignored); λ is zero on pinned
+    /// dofs. Needs a successful [`Adjoint::factor`].
+    ///
+    /// # Errors
+    /// [`AdjointError::NotFactored`], [`AdjointError::Length`], [`AdjointError::Linear`].
+    pub fn solve(&mut self, b: &[f64]) -> Result<&[f64], AdjointError> {
+        if !self.factored {
+            return Err(AdjointError::NotFactored);
+        }
+        if b.len() != 3 * self.n_vertices {
+            return Err(AdjointError::Length {
+                what: "the right-hand side",
+                got: b.len(),
+                expected: 3 * self.n_vertices,
+            });
+        }
+        for (r, &d) in self.rhs.iter_mut().zip(&self.reduced.dofs) {
+            *r = b[d];
+        }
+        self.solver.solve(&mut self.rhs)?;
+        self.lambda.fill(0.0);
+        for (&r, &d) in self.rhs.iter().zip(&self.reduced.dofs) {
+            self.lambda[d] = r;
+        }
+        Ok(&self.lambda)
+    }
+
+    /// The adjoint vector of the last [`Adjoint::solve`].
+    pub fn lambda(&self) -> &[f64] {
+        &self.lambda
+    }
+
+    /// `dL/dp = −λᵀ ∂g/∂p` for the system parameter `name` ([`System::parameters`]) with λ from the last
+    /// [`Adjoint::solve`] (whose right-hand side was `∂L/∂x`), at the same `x`: one value per parameter
+    /// entry.
+    ///
+    /// # Errors
+    /// [`AdjointError::NotFactored`]; [`EvalError::Parameter`] for an unknown name.
+    pub fn parameter_gradient(
+        &self,
+        system: &mut System,
+        x: &[Vector3<f64>],
+        name: &str,
+    ) -> Result<Vec<f64>, AdjointError> {
+        if !self.factored {
+            return Err(AdjointError::NotFactored);
+        }
+        let len = parameter_len(system, name)?;
+        let mut contracted = vec![0.0; len];
+        system.add_parameter_derivatives(
+            x,
+            name,
+            &mut ParameterOutput {
+                energy: &mut [],
+                lambda: &self.lambda,
+                contracted: &mut contracted,
+                gradient: &mut [],
+            },
+        )?;
+        for c in &mut contracted {
+            *c = -*c;
+        }
+        Ok(contracted)
+    }
+
+    /// Forward sensitivity `dx*/dp = −H⁻¹ ∂g/∂p` of a scalar system parameter (`3n` entries, zero on pinned
+    /// dofs), at the state of the last [`Adjoint::factor`].
+    ///
+    /// # Errors
+    /// As [`Adjoint::solve`]; [`EvalError::Parameter`] for an unknown or non-scalar parameter.
+    pub fn sensitivity(
+        &mut self,
+        system: &mut System,
+        x: &[Vector3<f64>],
+        name: &str,
+    ) -> Result<Vec<f64>, AdjointError> {
+        if !self.factored {
+            return Err(AdjointError::NotFactored);
+        }
+        let mut dg = vec![0.0; 3 * self.n_vertices];
+        system.add_parameter_derivatives(
+            x,
+            name,
+            &mut ParameterOutput {
+                energy: &mut [],
+                lambda: &[],
+                contracted: &mut [],
+                gradient: &mut dg,
+            },
+        )?;
+        let s = self.solve(&dg)?;
+        Ok(s.iter().map(|v| -v).collect())
+    }
+}
+
+/// The number of values of system parameter `name`.
+fn parameter_len(system: &System, name: &str) -> Result<usize, EvalError> {
+    system
+        .parameters()
+        .into_iter()
+        .find(|p| p.name == name)
+        .map(|p| p.len)
+        .ok_or_else(|| hinge_core::energy::unknown_parameter(name, &system.parameters()))
+}
+
+/// The default loss: the sum of squared distances of chosen vertices to target positions,
+/// `L = Σ_k |x_{v_k} − t_k|²`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TargetLoss {
+    /// The vertices compared (the caller's numbering).
+    pub vertices: Vec<usize>,
+    /// Their target positions.
+    pub targets: Vec<Vector3<f64>>,
+}
+
+impl TargetLoss {
+    /// Every vertex against `targets` (one per vertex).
+    pub fn all(targets: Vec<Vector3<f64>>) -> Self {
+        Self {
+            vertices: (0..targets.len()).collect(),
+            targets,
+        }
+    }
+
+    /// `L(x)` and `∂L/∂x` (`3n` entries) into `grad`.
+    ///
+    /// # Errors
+    /// [`AdjointError::Setup`] naming a vertex out of range; [`AdjointError::Length`] for a mismatched target
+    /// list.
+    pub fn evaluate(&self, x: &[Vector3<f64>], grad: &mut [f64]) -> Result<f64, AdjointError> {
+        if self.vertices.len() != self.targets.len() {
+            return Err(AdjointError::Length {
+                what: "the targets",
+                got: self.targets.len(),
+                expected: self.vertices.len(),
+            });
+        }
+        if grad.len() != 3 * x.len() {
+            return Err(AdjointError::Length {
+                what: "the loss gradient",
+                got: grad.len(),
+                expected: 3 * x.len(),
+            });
+        }
+        grad.fill(0.0);
+        let mut l = 0.0;
+        for (&v, t) in self.vertices.iter().zip(&self.targets) {
+            let Some(p) = x.get(v) else {
+                return Err(AdjointError::Setup(format!(
+                    "target vertex {v} is beyond the mesh's {} vertices",
+                    x.len()
+                )));
+            };
+            let d = p - t;
+            l += d.norm_squared();
+            for c in 0..3 {
+                grad[3 * v + c] += 2.0 * d[c];
+            }
+        }
+        Ok(l)
+    }
+}
+
+/// A loss on the equilibrium: `L(x)`, writing `∂L/∂x` (`3n` entries) into its second argument.
+pub type LossFn<'a> = dyn FnMut(&[Vector3<f64>], &mut [f64]) -> Result<f64, AdjointError> + 'a;
+
+/// How one fitted variable sets system parameters: `parameter = base · u^exponent`, entry by entry (a scalar
+/// variable scales every entry of `base`; a field variable has as many entries as the parameter).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Link {
+    /// The system parameter (`TERM.NAME`, [`System::parameters`]).
+    pub parameter: String,
+    /// Its value at `u = 1` (as many entries as the parameter).
+    pub base: Vec<f64>,
+    /// The power of `u`.
+    pub exponent: f64,
+}
+
+/// A variable the fit adjusts: a name for reports, its starting value(s) and the system parameters it sets.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitVariable {
+    /// Its name (a scene key, say).
+    pub name: String,
+    /// Starting values: one for a scalar, one per entry for a field. Positive when `positive`.
+    pub start: Vec<f64>,
+    /// Fitted as `u = exp(s)` (stays positive) rather than directly.
+    pub positive: bool,
+    /// The system parameters it sets.
+    pub links: Vec<Link>,
+}
+
+/// Options of a [`Fit`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitOptions {
+    /// L-BFGS iteration limit.
+    pub max_iterations: usize,
+    /// Stop when the loss is at most this.
+    pub loss_tolerance: f64,
+    /// Stop when the gradient norm (with respect to the optimisation variables) is at most this times its
+    /// first value.
+    pub relative_gradient_tolerance: f64,
+    /// Stop when an iteration lowers the loss by less than this fraction of it.
+    pub relative_decrease_tolerance: f64,
+    /// L-BFGS memory.
+    pub memory: usize,
+    /// The largest change of an optimisation variable in one step (for `positive` variables a factor of
+    /// `exp(max_step)`).
+    pub max_step: f64,
+    /// Weight of the smoothness regularizer `w Σ_(i,j) (s_i − s_j)²` over [`FitOptions::smooth_pairs`] of
+    /// field variables' entries (0: off).
+    pub smoothness: f64,
+    /// Pairs of entries `(variable, i, j)` the smoothness term couples (adjacent hinges, say).
+    pub smooth_pairs: Vec<(usize, usize, usize)>,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        Self {
+            max_iterations: 50,
+            loss_tolerance: 0.0,
+            relative_gradient_tolerance: 1e-8,
+            relative_decrease_tolerance: 1e-12,
+            memory: 8,
+            max_step: 1.0,
+            smoothness: 0.0,
+            smooth_pairs: Vec::new(),
+        }
+    }
+}
+
+/// The outcome of a fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitResult {
+    /// The fitted values of every variable, in order.
+    pub values: Vec<Vec<f64>>,
+    /// The loss there (regularizer included).
+    pub loss: f64,
+    /// The loss before fitting.
+    pub initial_loss: f64,
+    /// L-BFGS iterations.
+    pub iterations: usize,
+    /// Equilibrium solves, line-search trials included.
+    pub equilibria: usize,
+    /// The equilibrium at the fitted values.
+    pub x: Vec<Vector3<f64>>,
+    /// Why it stopped.
+    pub stop: &'static str,
+}
+
+/// Fitting variables of a system to a loss on its equilibrium (see the module documentation).
+pub struct Fit<'a> {
+    /// The variables.
+    pub variables: Vec<FitVariable>,
+    /// Options.
+    pub options: FitOptions,
+    newton: &'a mut Newton,
+    adjoint: Adjoint,
+    equilibria: usize,
+    grad_l: Vec<f64>,
+}
+
+impl std::fmt::Debug for Fit<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Fit")
+            .field("variables", &self.variables)
+            .field("options", &self.options)
+            .finish()
+    }
+}
+
+/// One evaluated point of the fit.
+struct Point {
+    s: Vec<f64>,
+    loss: f64,
+    grad: Vec<f64>,
+    x: Vec<Vector3<f64>>,
+}
+
+impl<'a> Fit<'a> {
+    /// A fit of `variables` of `system`, solving equilibria with `newton` (bound to `system` and `pins`).
+    ///
+    /// # Errors
+    /// [`AdjointError::Setup`] naming a variable with no links, a link to an unknown parameter or of the wrong
+    /// length, or a non-positive start of a positive variable.
+    pub fn new(
+        system: &System,
+        pins: &Pins,
+        newton: &'a mut Newton,
+        variables: Vec<FitVariable>,
+        options: FitOptions,
+    ) -> Result<Self, AdjointError> {
+        let known = system.parameters();
+        for v in &variables {
+            if v.start.is_empty() || v.links.is_empty() {
+                return Err(AdjointError::Setup(format!(
+                    "`{}`: a variable needs a start value and at least one parameter it sets",
+                    v.name
+                )));
+            }
+            if let Some(bad) = v
+                .start
+                .iter()
+                .find(|s| !s.is_finite() || (v.positive && **s <= 0.0))
+            {
+                return Err(AdjointError::Setup(format!(
+                    "`{}`: start value {bad} must be finite{}",
+                    v.name,
+                    if v.positive { " and positive" } else { "" }
+                )));
+            }
+            for l in &v.links {
+                let Some(p) = known.iter().find(|p| p.name == l.parameter) else {
+                    return Err(AdjointError::Eval(hinge_core::energy::unknown_parameter(
+                        &l.parameter,
+                        &known,
+                    )));
+                };
+                if l.base.len() != p.len || !(v.start.len() == 1 || v.start.len() == p.len) {
+                    return Err(AdjointError::Setup(format!(
+                        "`{}`: parameter `{}` has {} values; the link has {} and the variable {}",
+                        v.name,
+                        l.parameter,
+                        p.len,
+                        l.base.len(),
+                        v.start.len()
+                    )));
+                }
+            }
+        }
+        for &(k, i, j) in &options.smooth_pairs {
+            if variables.get(k).is_none_or(|v| i.max(j) >= v.start.len()) {
+                return Err(AdjointError::Setup(format!(
+                    "smoothness pair ({k}, {i}, {j}) names no entry of a variable"
+                )));
+            }
+        }
+        Ok(Self {
+            adjoint: Adjoint::new(system, pins)?,
+            grad_l: vec![0.0; 3 * system.n_vertices()],
+            variables,
+            options,
+            newton,
+            equilibria: 0,
+        })
+    }
+
+    /// Equilibrium solves so far.
+    pub fn equilibria(&self) -> usize {
+        self.equilibria
+    }
+
+    fn to_s(&self) -> Vec<f64> {
+        self.variables
+            .iter()
+            .flat_map(|v| {
+                v.start
+                    .iter()
+                    .map(move |&u| if v.positive { u.ln() } else { u })
+            })
+            .collect()
+    }
+
+    fn unpack(&self, s: &[f64]) -> Vec<Vec<f64>> {
+        let mut k = 0;
+        self.variables
+            .iter()
+            .map(|v| {
+                let u: Vec<f64> = s[k..k + v.start.len()]
+                    .iter()
+                    .map(|&si| if v.positive { si.exp() } else { si })
+                    .collect();
+                k += v.start.len();
+                u
+            })
+            .collect()
+    }
+
+    /// Sets every linked parameter from the variables' values `u`.
+    fn apply(&self, system: &mut System, u: &[Vec<f64>]) -> Result<(), AdjointError> {
+        for (v, uv) in self.variables.iter().zip(u) {
+            for l in &v.links {
+                let vals: Vec<f64> = l
+                    .base
+                    .iter()
+                    .enumerate()
+                    .map(|(i, b)| b * uv[if uv.len() == 1 { 0 } else { i }].powf(l.exponent))
+                    .collect();
+                system.set_parameter(&l.parameter, &vals)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The regularizer's value and gradient (added to `grad`).
+    fn regularizer(&self, s: &[f64], grad: &mut [f64]) -> f64 {
+        if self.options.smoothness == 0.0 {
+            return 0.0;
+        }
+        let offsets: Vec<usize> = self
+            .variables
+            .iter()
+            .scan(0, |k, v| {
+                let o = *k;
+                *k += v.start.len();
+                Some(o)
+            })
+            .collect();
+        let w = self.options.smoothness;
+        let mut r = 0.0;
+        for &(k, i, j) in &self.options.smooth_pairs {
+            let (a, b) = (offsets[k] + i, offsets[k] + j);
+            let d = s[a] - s[b];
+            r += w * d * d;
+            grad[a] += 2.0 * w * d;
+            grad[b] -= 2.0 * w * d;
+        }
+        r
+    }
+
+    /// Loss and gradient with respect to the optimisation variables at `s`, the equilibrium solved from
+    /// `x` (overwritten with it). On error the system's parameters may be those of `s`.
+    fn evaluate(
+        &mut self,
+        system: &mut System,
+        s: &[f64],
+        x: &mut [Vector3<f64>],
+        loss: &mut LossFn,
+    ) -> Result<(f64, Vec<f64>), AdjointError> {
+        let u = self.unpack(s);
+        self.apply(system, &u)?;
+        self.equilibria += 1;
+        self.newton.minimize(system, x, None)?;
+        let l = loss(x, &mut self.grad_l)?;
+        self.adjoint.factor(system, x)?;
+        self.adjoint.solve(&self.grad_l)?;
+        let mut grad = vec![0.0; s.len()];
+        let mut k = 0;
+        for (v, uv) in self.variables.iter().zip(&u) {
+            for l in &v.links {
+                let dp = self.adjoint.parameter_gradient(system, x, &l.parameter)?;
+                // p_i = b_i u^e: dL/du = Σ_i dL/dp_i · b_i e u^(e−1).
+                for (i, (&g, &b)) in dp.iter().zip(&l.base).enumerate() {
+                    let j = if uv.len() == 1 { 0 } else { i };
+                    let du = b * l.exponent * uv[j].powf(l.exponent - 1.0);
+                    grad[k + j] += g * du;
+                }
+            }
+            if v.positive {
+                for j in 0..uv.len() {
+                    grad[k + j] *= uv[j];
+                }
+            }
+            k += uv.len();
+        }
+        let r = self.regularizer(s, &mut grad);
+        Ok((l + r, grad))
+    }
+
+    /// Runs L-BFGS from the variables' start values and the state `x` (an initial guess of the first
+    /// equilibrium; on success it holds the fitted equilibrium, and the system the fitted parameters).
+    /// Every evaluation solves the equilibrium from the last accepted one (warm start). A trial whose
+    /// equilibrium fails to converge counts as a failed line-search step (the step is halved); a failure
+    /// at the start is an error.
+    ///
+    /// # Errors
+    /// [`AdjointError`]: the first equilibrium fails, the Hessian at an equilibrium is not positive
+    /// definite, evaluation errors. On error the system holds the start values.
+    pub fn run(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        loss: &mut LossFn,
+    ) -> Result<FitResult, AdjointError> {
+        let s0 = self.to_s();
+        let start = self.unpack(&s0);
+        let restore = |fit: &Self, system: &mut System| {
+            let _ = fit.apply(system, &start);
+        };
+        let mut xw = x.to_vec();
+        let first = match self.evaluate(system, &s0, &mut xw, loss) {
+            Ok(v) => v,
+            Err(e) => {
+                restore(self, system);
+                return Err(e);
+            }
+        };
+        let mut cur = Point {
+            s: s0,
+            loss: first.0,
+            grad: first.1,
+            x: xw,
+        };
+        let initial_loss = cur.loss;
+        let g0 = norm(&cur.grad);
+        let mut mem: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
+        let mut iterations = 0;
+        let mut stop = "iteration limit";
+        while iterations < self.options.max_iterations {
+            if cur.loss <= self.options.loss_tolerance {
+                stop = "loss tolerance";
+                break;
+            }
+            let gn = norm(&cur.grad);
+            if gn == 0.0 || gn <= self.options.relative_gradient_tolerance * g0 {
+                stop = "gradient tolerance";
+                break;
+            }
+            let mut d = two_loop(&cur.grad, &mem);
+            let mut slope = dot(&d, &cur.grad);
+            if !(slope < 0.0) {
+                mem.clear();
+                d = cur.grad.iter().map(|g| -g).collect();
+                slope = -gn * gn;
+            }
+            // Cap the step so no variable moves more than max_step.
+            let big = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let mut t = if big > self.options.max_step {
+                self.options.max_step / big
+            } else {
+                1.0
+            };
+            let mut accepted = None;
+            for _ in 0..30 {
+                let s: Vec<f64> = cur.s.iter().zip(&d).map(|(a, b)| a + t * b).collect();
+                let mut xt = cur.x.clone();
+                match self.evaluate(system, &s, &mut xt, loss) {
+                    Ok((l, g)) if l.is_finite() && l <= cur.loss + 1e-4 * t * slope => {
+                        accepted = Some(Point {
+                            s,
+                            loss: l,
+                            grad: g,
+                            x: xt,
+                        });
+                        break;
+                    }
+                    Ok(_)
+                    | Err(AdjointError::Equilibrium(_))
+                    | Err(AdjointError::NotMinimum { .. }) => t *= 0.5,
+                    Err(e) => {
+                        restore(self, system);
+                        return Err(e);
+                    }
+                }
+            }
+            iterations += 1;
+            let Some(next) = accepted else {
+                stop = "line search";
+                break;
+            };
+            let sk: Vec<f64> = next.s.iter().zip(&cur.s).map(|(a, b)| a - b).collect();
+            let yk: Vec<f64> = next
+                .grad
+                .iter()
+                .zip(&cur.grad)
+                .map(|(a, b)| a - b)
+                .collect();
+            if dot(&sk, &yk) > 1e-12 * norm(&sk) * norm(&yk) {
+                mem.push((sk, yk));
+                if mem.len() > self.options.memory {
+                    mem.remove(0);
+                }
+            }
+            let decrease = cur.loss - next.loss;
+            cur = next;
+            if decrease <= self.options.relative_decrease_tolerance * cur.loss.abs() {
+                stop = "loss no longer decreasing";
+                break;
+            }
+        }
+        // Leave the system at the fitted values (the last evaluation may have been a rejected trial).
+        let values = self.unpack(&cur.s);
+        self.apply(system, &values)?;
+        x.copy_from_slice(&cur.x);
+        Ok(FitResult {
+            values,
+            loss: cur.loss,
+            initial_loss,
+            iterations,
+            equilibria: self.equilibria,
+            x: cur.x,
+            stop,
+        })
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn norm(a: &[f64]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// The L-BFGS direction `−H̃ g` from the pairs `(s_k, y_k)` (oldest first), scaled by `sᵀy / yᵀy` of the
+/// newest pair.
+fn two_loop(g: &[f64], mem: &[(Vec<f64>, Vec<f64>)]) -> Vec<f64> {
+    let mut q = g.to_vec();
+    let mut alpha = vec![0.0; mem.len()];
+    for (k, (s, y)) in mem.iter().enumerate().rev() {
+        let rho = 1.0 / dot(y, s);
+        alpha[k] = rho * dot(s, &q);
+        for (qi, yi) in q.iter_mut().zip(y) {
+            *qi -= alpha[k] * yi;
+        }
+    }
+    if let Some((s, y)) = mem.last() {
+        let gamma = dot(s, y) / dot(y, y);
+        for qi in &mut q {
+            *qi *= gamma;
+        }
+    }
+    for (k, (s, y)) in mem.iter().enumerate() {
+        let rho = 1.0 / dot(y, s);
+        let beta = rho * dot(y, &q);
+        for (qi, si) in q.iter_mut().zip(s) {
+            *qi += (alpha[k] - beta) * si;
+        }
+    }
+    q.iter().map(|v| -v).collect()
+}

@@ -1,0 +1,681 @@
+//! Parameter derivatives and adjoint sensitivities (issue 19): ∂ψ/∂p and ∂ψ′/∂p of derived and run-time ψ
+//! against num-dual (an independent tree-walking evaluator of the unsimplified text, hyper-dual in θ and the
+//! parameter) and central differences; every energy's `∂E/∂p`, `(∂∇E/∂p)ᵀλ` and `∂∇E/∂p` against central
+//! differences on irregular, renumbered meshes; the adjoint `dL/dp` against central differences of
+//! re-solved equilibria (scalar, material and per-hinge parameters, a cantilever and a non-grid sheet);
+//! fits that recover known parameters from targets the solver made.
+
+use hinge_core::HingeEnergy;
+use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::energy::{Energy, HingeTerm, ParameterOutput, System};
+use hinge_core::grid::{Diagonal, SplitMix64, grid};
+use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
+use hinge_core::psi::{HingePsi, HingeQuantities};
+use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
+use hinge_core::{EvalError, TriMesh};
+use hinge_energies::bending::plate_consistent_stiffness;
+use hinge_energies::contact::{Contact, Obstacle};
+use hinge_energies::corotational::CorotationalMembrane;
+use hinge_energies::gravity::{Gravity, lumped_masses};
+use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::pins::Pins;
+use hinge_energies::spring::MassSpring;
+use hinge_solver::adjoint::{
+    Adjoint, AdjointError, Fit, FitOptions, FitVariable, Link, TargetLoss,
+};
+use hinge_solver::linear::default_solver;
+use hinge_solver::newton::{Newton, NewtonParams};
+use hinge_tests::*;
+use num_dual::HyperDual64;
+
+/// Expressions with two parameters `c0`, `c1`, exercising every rule of the parameter derivative: products,
+/// quotients, powers with parameter exponents, functions, `atan2` of parameters, `if`, `abs`, `let`, θ̄.
+const EXPRESSIONS: [&str; 7] = [
+    "c0 * a * (theta - theta_bar).powi(2) + c1 * theta",
+    "c0 * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2) + c1 * theta",
+    "c0 * (theta - c1 * theta_bar).powi(2) / (1.0 + c1 * c1)",
+    "c0 * (1.0 + theta * theta).powf(c1) + c1.exp() * theta.sin()",
+    "c1.atan2(c0) * theta.powi(2) + (c0 * theta + c1).cosh()",
+    "if theta < c1 { c0 * (theta - c1).powi(2) } else { c1 * c0.sqrt() * (theta - c1).powi(3) }",
+    "{ let d = theta - theta_bar; c0 * d.abs().powi(3) + (c1 * d).tanh() * rest_length }",
+];
+
+/// `[∂ψ/∂c_k, ∂ψ′/∂c_k]` for k = 0, 1 and θ̄ from the independent evaluator, hyper-dual in θ and one value.
+fn reference(expr: &str, c: [f64; 2], q: &HingeQuantities, theta: f64) -> [[f64; 2]; 3] {
+    let tree = hinge_symbolic::text::parse(expr).unwrap_or_else(|e| panic!("{expr}: {e:?}"));
+    let mut out = [[0.0; 2]; 3];
+    for (k, slot) in out.iter_mut().enumerate() {
+        let seed = |i: usize, v: f64| {
+            if i == k {
+                HyperDual64::new(v, 0.0, 1.0, 0.0)
+            } else {
+                HyperDual64::from(v)
+            }
+        };
+        let env = [
+            ("c0", seed(0, c[0])),
+            ("c1", seed(1, c[1])),
+            ("theta_bar", seed(2, q.theta_bar)),
+            ("a", HyperDual64::from(q.a)),
+            ("rest_length", HyperDual64::from(q.rest_length)),
+            ("rest_area", HyperDual64::from(q.rest_area)),
+            ("theta_prev", HyperDual64::from(q.theta_prev)),
+            ("dt", HyperDual64::from(q.dt)),
+        ];
+        let t = HyperDual64::new(theta, 1.0, 0.0, 0.0);
+        let r = tree::eval_dual_env(&tree, t, &env);
+        *slot = [r.eps2, r.eps1eps2];
+    }
+    out
+}
+
+fn runtime(expr: &str, c: [f64; 2]) -> RuntimePsi {
+    RuntimePsi::new(expr, [("c0", c[0].into()), ("c1", c[1].into())])
+        .unwrap_or_else(|e| panic!("{expr}: {e}"))
+}
+
+#[test]
+fn runtime_parameter_derivatives_match_num_dual_and_finite_differences() {
+    let c = [0.8, 1.3];
+    let mut worst_dual = 0.0f64;
+    let mut worst_fd = 0.0f64;
+    let mut compared = 0;
+    for (k, expr) in EXPRESSIONS.into_iter().enumerate() {
+        let psi = runtime(expr, c);
+        assert!(psi.has_parameter_derivatives());
+        let names: Vec<String> = HingePsi::parameters(&psi)
+            .into_iter()
+            .map(|p| p.name)
+            .collect();
+        assert_eq!(names, ["c0", "c1"]);
+        let mut rng = SplitMix64(900 + k as u64);
+        for i in 0..200 {
+            let q = random_quantities(&mut rng, i);
+            let theta = rng.range(-2.0, 2.0);
+            let mut d = [[0.0; 2]; 3];
+            assert!(psi.parameter_derivatives(&q, theta, &mut d));
+            assert!(!psi.parameter_derivatives(&q, theta, &mut [[0.0; 2]; 2]));
+            let r = reference(expr, c, &q, theta);
+            for j in 0..3 {
+                for m in 0..2 {
+                    let scale = r[j][m].abs().max(1.0);
+                    worst_dual = worst_dual.max((d[j][m] - r[j][m]).abs() / scale);
+                    compared += 1;
+                }
+            }
+            // Central differences of ψ and ψ′ in each parameter (through re-built energies: c0, c1) and θ̄
+            // (through the quantities).
+            let h = 1e-6;
+            for j in 0..3 {
+                let eval_at = |delta: f64| {
+                    let (mut cc, mut qq) = (c, q);
+                    if j < 2 {
+                        cc[j] += delta;
+                    } else {
+                        qq.theta_bar += delta;
+                    }
+                    let p = runtime(expr, cc);
+                    let params = p.params(&qq);
+                    p.eval(&params, theta)
+                };
+                let (fp, fm) = (eval_at(h), eval_at(-h));
+                for m in 0..2 {
+                    let fd = (fp[m] - fm[m]) / (2.0 * h);
+                    let scale = fd.abs().max(d[j][m].abs()).max(1.0);
+                    worst_fd = worst_fd.max((fd - d[j][m]).abs() / scale);
+                }
+            }
+        }
+    }
+    println!(
+        "runtime ∂ψ/∂p, ∂ψ′/∂p over {compared} values: num-dual {worst_dual:.1e}, central differences {worst_fd:.1e}"
+    );
+    assert!(worst_dual < 1e-12, "{worst_dual}");
+    assert!(worst_fd < 1e-6, "{worst_fd}");
+}
+
+/// A derived energy with a scalar and a per-hinge field, and the same text at run time.
+#[derive(Debug, Clone, PartialEq, HingeEnergy)]
+#[psi(k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2) + s * (theta - theta_bar).powi(3))]
+struct Graded {
+    k: f64,
+    #[per_hinge]
+    s: Vec<f64>,
+}
+
+const GRADED: &str = "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2) + s * (theta - theta_bar).powi(3)";
+
+#[test]
+fn derived_parameter_derivatives_equal_the_runtime_ones_and_num_dual() {
+    let s: Vec<f64> = (0..10).map(|i| 0.1 + 0.05 * i as f64).collect();
+    let derived = Graded {
+        k: 1.7,
+        s: s.clone(),
+    };
+    let rt = RuntimePsi::new(
+        GRADED,
+        [
+            ("k", ParamValue::Scalar(1.7)),
+            ("s", ParamValue::PerHinge(s.clone())),
+        ],
+    )
+    .unwrap();
+    let infos = HingePsi::parameters(&derived);
+    assert_eq!(infos.len(), 2);
+    assert_eq!((infos[0].name.as_str(), infos[0].per_hinge), ("k", false));
+    assert_eq!((infos[1].name.as_str(), infos[1].per_hinge), ("s", true));
+    assert_eq!(HingePsi::parameters(&rt), infos);
+    let mut rng = SplitMix64(77);
+    let mut worst = 0.0f64;
+    let mut worst_dual = 0.0f64;
+    for i in 0..500 {
+        let q = random_quantities(&mut rng, i % 10);
+        let theta = rng.range(-2.0, 2.0);
+        let (mut a, mut b) = ([[0.0; 2]; 3], [[0.0; 2]; 3]);
+        assert!(derived.parameter_derivatives(&q, theta, &mut a));
+        assert!(rt.parameter_derivatives(&q, theta, &mut b));
+        for j in 0..3 {
+            for m in 0..2 {
+                worst = worst.max((a[j][m] - b[j][m]).abs() / a[j][m].abs().max(1e-300));
+            }
+        }
+        // num-dual on the text with k, s_h, θ̄ as the seeded values.
+        let tree = hinge_symbolic::text::parse(GRADED).unwrap();
+        for (j, slot) in a.iter().enumerate() {
+            let seed = |idx: usize, v: f64| {
+                if idx == j {
+                    HyperDual64::new(v, 0.0, 1.0, 0.0)
+                } else {
+                    HyperDual64::from(v)
+                }
+            };
+            let env = [
+                ("k", seed(0, 1.7)),
+                ("s", seed(1, s[q.hinge])),
+                ("theta_bar", seed(2, q.theta_bar)),
+                ("a", HyperDual64::from(q.a)),
+            ];
+            let r = tree::eval_dual_env(&tree, HyperDual64::new(theta, 1.0, 0.0, 0.0), &env);
+            for (m, v) in [r.eps2, r.eps1eps2].into_iter().enumerate() {
+                worst_dual = worst_dual.max((slot[m] - v).abs() / v.abs().max(1.0));
+            }
+        }
+    }
+    println!("derive vs run time: {worst:.1e} relative; derive vs num-dual {worst_dual:.1e}");
+    assert!(worst < 1e-14, "{worst}");
+    assert!(worst_dual < 1e-12, "{worst_dual}");
+    // Getters and setters.
+    let mut d = derived.clone();
+    assert_eq!(d.parameter_values(0), Some(vec![1.7]));
+    assert_eq!(d.parameter_values(1), Some(s.clone()));
+    assert_eq!(d.parameter_values(2), None);
+    d.set_parameter_values(0, &[2.5]).unwrap();
+    assert_eq!(d.k, 2.5);
+    assert!(d.set_parameter_values(0, &[1.0, 2.0]).is_err());
+    assert_eq!(d.k, 2.5);
+    assert!(d.set_parameter_values(5, &[1.0]).is_err());
+}
+
+/// An irregular, renumbered sheet bent and jittered (hinges at many angles).
+fn sheet() -> (TriMesh, Vec<Vector3<f64>>) {
+    let base = irregular_sheet(7, 6, 11).unwrap();
+    let perm = random_permutation(base.n_vertices(), 5);
+    let rest = renumber(&base, &perm).unwrap();
+    let mut rng = SplitMix64(3);
+    let x = rest
+        .positions()
+        .iter()
+        .map(|p| {
+            Vector3::new(
+                1.03 * p.x + 0.01 * rng.symmetric(),
+                0.98 * p.y + 0.01 * rng.symmetric(),
+                0.25 * (2.5 * p.x).sin() + 0.1 * p.y * p.y + 0.01 * rng.symmetric(),
+            )
+        })
+        .collect();
+    (rest, x)
+}
+
+fn energies(rest: &TriMesh) -> Vec<Box<dyn Energy>> {
+    let n_hinges = hinge_core::topology::hinges(rest).unwrap().len();
+    let field: Vec<f64> = (0..n_hinges).map(|i| 0.5 + 0.01 * i as f64).collect();
+    let rt = RuntimePsi::new(
+        "k * a * (theta - theta_bar).powi(2) + c * (theta - theta_bar).powi(4)",
+        [
+            ("k", ParamValue::PerHinge(field.clone())),
+            ("c", ParamValue::Scalar(0.3)),
+        ],
+    )
+    .unwrap();
+    vec![
+        Box::new(HingeTerm::new(
+            "graded",
+            BendingModel::new(
+                rest,
+                Graded {
+                    k: 0.9,
+                    s: field.clone(),
+                },
+            )
+            .unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(HingeTerm::new(
+            "runtime",
+            BendingModel::new(rest, rt).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StvkMembrane::new(rest, 50.0, 0.3, 0.01).unwrap()),
+        Box::new(CorotationalMembrane::new(rest, 0.7).unwrap()),
+        Box::new(MassSpring::new(rest, 3.0).unwrap()),
+        Box::new(Gravity::new(lumped_masses(rest, 0.2), Vector3::new(0.1, 0.0, -9.81)).unwrap()),
+        Box::new(
+            Contact::new(
+                rest.n_vertices(),
+                Obstacle::Plane {
+                    point: Vector3::new(0.0, 0.0, -0.05),
+                    normal: Vector3::new(0.0, 0.1, 1.0),
+                },
+                40.0,
+                0.2,
+            )
+            .unwrap(),
+        ),
+    ]
+}
+
+/// Energy and gradient of `system` at `x`.
+fn eg(system: &mut System, x: &[Vector3<f64>]) -> (f64, Vec<f64>) {
+    let r = system
+        .evaluate(x, Request::GRADIENT, Parallelism::Sequential)
+        .unwrap();
+    (r.energy, r.gradient)
+}
+
+#[test]
+fn every_parameter_derivative_matches_central_differences() {
+    let (rest, x) = sheet();
+    let n = rest.n_vertices();
+    let mut system = System::new(n, energies(&rest)).unwrap();
+    let params = system.parameters();
+    let names: Vec<&str> = params.iter().map(|p| p.name.as_str()).collect();
+    for want in [
+        "graded.k",
+        "graded.s",
+        "graded.theta_bar",
+        "runtime.k",
+        "runtime.c",
+        "runtime.theta_bar",
+        "membrane.young",
+        "membrane.thickness",
+        "corotational-membrane.stiffness",
+        "mass-spring.k",
+        "gravity.g",
+        "contact-plane.stiffness",
+    ] {
+        assert!(names.contains(&want), "{want} not in {names:?}");
+    }
+    let mut rng = SplitMix64(8);
+    let lambda: Vec<f64> = (0..3 * n).map(|_| rng.symmetric()).collect();
+    let mut worst = 0.0f64;
+    // Each energy alone (the differences of one term are not drowned in the others' rounding).
+    let count = energies(&rest).len();
+    for term in 0..count {
+        let mut one = System::new(n, vec![energies(&rest).swap_remove(term)]).unwrap();
+        for p in one.parameters() {
+            let mut de = vec![0.0; p.len];
+            let mut dc = vec![0.0; p.len];
+            let mut dg = vec![0.0; if p.len == 1 { 3 * n } else { 0 }];
+            one.add_parameter_derivatives(
+                &x,
+                &p.name,
+                &mut ParameterOutput {
+                    energy: &mut de,
+                    lambda: &lambda,
+                    contracted: &mut dc,
+                    gradient: &mut dg,
+                },
+            )
+            .unwrap();
+            let base = one.parameter(&p.name).unwrap();
+            // Entries checked: all of a short parameter, every 7th of a field.
+            for i in (0..p.len).step_by(if p.len > 3 { 7 } else { 1 }) {
+                let h = 1e-3 * base[i].abs().max(1e-1);
+                let mut at = |delta: f64| {
+                    let mut v = base.clone();
+                    v[i] += delta;
+                    one.set_parameter(&p.name, &v).unwrap();
+                    let r = eg(&mut one, &x);
+                    one.set_parameter(&p.name, &base).unwrap();
+                    r
+                };
+                // Central differences at h and 2h, Richardson-extrapolated (error O(h⁴)).
+                let mut central = |h: f64| {
+                    let ((ep, gp), (em, gm)) = (at(h), at(-h));
+                    let g: Vec<f64> = gp
+                        .iter()
+                        .zip(&gm)
+                        .map(|(a, b)| (a - b) / (2.0 * h))
+                        .collect();
+                    ((ep - em) / (2.0 * h), g)
+                };
+                let ((e1, g1), (e2, g2)) = (central(h), central(2.0 * h));
+                let fd_e = (4.0 * e1 - e2) / 3.0;
+                let fd_g: Vec<f64> = g1
+                    .iter()
+                    .zip(&g2)
+                    .map(|(a, b)| (4.0 * a - b) / 3.0)
+                    .collect();
+                let fd_c: f64 = fd_g.iter().zip(&lambda).map(|(a, b)| a * b).sum();
+                let scale_g = fd_g.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-8);
+                let err_e = (fd_e - de[i]).abs() / fd_e.abs().max(1e-8);
+                let err_c = (fd_c - dc[i]).abs() / fd_c.abs().max(scale_g);
+                let mut err = err_e.max(err_c);
+                if !dg.is_empty() {
+                    let e = fd_g
+                        .iter()
+                        .zip(&dg)
+                        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()))
+                        / scale_g;
+                    err = err.max(e);
+                }
+                assert!(
+                    err < 1e-6,
+                    "{} [{i}]: {err:.2e} (E {fd_e} vs {})",
+                    p.name,
+                    de[i]
+                );
+                worst = worst.max(err);
+            }
+        }
+    }
+    println!(
+        "{} parameters: worst relative error against central differences {worst:.1e}",
+        params.len()
+    );
+    // Unknown names and bad values are typed errors naming them; nothing changes on error.
+    let before = system.parameter("membrane.young").unwrap();
+    for (name, values) in [
+        ("membrane.nope", vec![1.0]),
+        ("membrane.young", vec![-1.0]),
+        ("membrane.young", vec![1.0, 2.0]),
+        ("graded.s", vec![1.0]),
+        ("graded.theta_bar", vec![f64::NAN; 3]),
+    ] {
+        match system.set_parameter(name, &values) {
+            Err(EvalError::Parameter { name: n, .. }) => assert!(name.ends_with(n.as_str()), "{n}"),
+            Err(EvalError::Psi(_)) => {}
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+    assert_eq!(system.parameter("membrane.young").unwrap(), before);
+    let e = system.parameter("nothing.here").unwrap_err().to_string();
+    assert!(
+        e.contains("nothing.here") && e.contains("membrane.young"),
+        "{e}"
+    );
+}
+
+/// A cantilever: a strip clamped at x = 0 (its first two vertex columns), discrete-shells bending with the
+/// plate-consistent stiffness of the material, StVK membrane, gravity.
+struct Cantilever {
+    rest: TriMesh,
+    pins: Pins,
+    young: f64,
+    thickness: f64,
+    poisson: f64,
+}
+
+fn cantilever(rest: TriMesh, spacing: f64, young: f64) -> Cantilever {
+    let n = rest.n_vertices();
+    let pinned: Vec<usize> = (0..n)
+        .filter(|&v| rest.positions()[v].x < 1.35 * spacing)
+        .collect();
+    Cantilever {
+        pins: Pins::new(n, pinned).unwrap(),
+        rest,
+        young,
+        thickness: 1e-3,
+        poisson: 0.3,
+    }
+}
+
+fn cantilever_system(c: &Cantilever, per_hinge: bool) -> System {
+    let k = plate_consistent_stiffness(c.young, c.thickness, c.poisson);
+    let n_hinges = hinge_core::topology::hinges(&c.rest).unwrap().len();
+    let psi = if per_hinge {
+        RuntimePsi::new(
+            "k * a * (theta - theta_bar).powi(2)",
+            [("k", ParamValue::PerHinge(vec![k; n_hinges]))],
+        )
+    } else {
+        RuntimePsi::new("k * a * (theta - theta_bar).powi(2)", [("k", k.into())])
+    }
+    .unwrap();
+    System::new(
+        c.rest.n_vertices(),
+        vec![
+            Box::new(HingeTerm::new(
+                "bending",
+                BendingModel::new(&c.rest, psi).unwrap(),
+                Method::Refactored,
+            )),
+            Box::new(StvkMembrane::new(&c.rest, c.young, c.poisson, c.thickness).unwrap()),
+            Box::new(
+                Gravity::new(
+                    lumped_masses(&c.rest, 1000.0 * c.thickness),
+                    Vector3::new(0.0, 0.0, -9.81),
+                )
+                .unwrap(),
+            ),
+        ],
+    )
+    .unwrap()
+}
+
+fn tight_newton(system: &System, pins: &Pins) -> Newton {
+    Newton::new(
+        system,
+        pins,
+        default_solver(),
+        NewtonParams {
+            max_iterations: 400,
+            gradient_tolerance: 1e-10,
+            step_tolerance: 0.0,
+            relative_gradient_tolerance: 0.0,
+            relative_step_tolerance: 0.0,
+            ..NewtonParams::default()
+        },
+    )
+    .unwrap()
+}
+
+/// `checks`: parameter, entry, central-difference step.
+fn check_adjoint(c: &Cantilever, per_hinge: bool, checks: &[(&str, usize, f64)]) -> f64 {
+    let mut system = cantilever_system(c, per_hinge);
+    let mut newton = tight_newton(&system, &c.pins);
+    let mut x = c.rest.positions().to_vec();
+    newton.minimize(&mut system, &mut x, None).unwrap();
+    // Target: the equilibrium moved by a smooth field (not an equilibrium of anything).
+    let target: Vec<Vector3<f64>> = x
+        .iter()
+        .map(|p| p + Vector3::new(0.0, 0.002 * p.x, -0.01 * p.x * p.x))
+        .collect();
+    let loss = TargetLoss::all(target);
+    let mut dl = vec![0.0; 3 * x.len()];
+    loss.evaluate(&x, &mut dl).unwrap();
+    let mut adjoint = Adjoint::new(&system, &c.pins).unwrap();
+    adjoint.factor(&mut system, &x).unwrap();
+    adjoint.solve(&dl).unwrap();
+    let mut worst = 0.0f64;
+    for &(name, entry, h) in checks {
+        let g = adjoint.parameter_gradient(&mut system, &x, name).unwrap();
+        let base = system.parameter(name).unwrap();
+        let mut solved = |delta: f64| {
+            let mut v = base.clone();
+            v[entry] += delta;
+            system.set_parameter(name, &v).unwrap();
+            let mut y = x.clone();
+            newton.minimize(&mut system, &mut y, None).unwrap();
+            system.set_parameter(name, &base).unwrap();
+            loss.evaluate(&y, &mut vec![0.0; 3 * y.len()]).unwrap()
+        };
+        // Central differences at h and 2h, Richardson-extrapolated (error O(h⁴)).
+        let d1 = (solved(h) - solved(-h)) / (2.0 * h);
+        let d2 = (solved(2.0 * h) - solved(-2.0 * h)) / (4.0 * h);
+        let fd = (4.0 * d1 - d2) / 3.0;
+        let err = (fd - g[entry]).abs() / fd.abs().max(g[entry].abs());
+        println!(
+            "  dL/d{name}[{entry}] = {:.6e}, central differences {fd:.6e}, relative {err:.1e}",
+            g[entry]
+        );
+        worst = worst.max(err);
+    }
+    worst
+}
+
+#[test]
+fn adjoint_gradients_match_central_differences_of_resolved_equilibria() {
+    // A cantilever strip (grid) and an irregular renumbered sheet clamped the same way.
+    let strip = cantilever(
+        grid(12, 2, 0.3, 0.05, Diagonal::Alternating).unwrap(),
+        0.025,
+        2e8,
+    );
+    let k = plate_consistent_stiffness(2e8, strip.thickness, strip.poisson);
+    let w1 = check_adjoint(
+        &strip,
+        false,
+        &[
+            ("bending.k", 0, 1e-3 * k),
+            ("membrane.young", 0, 2e6),
+            ("membrane.thickness", 0, 1e-6),
+            ("gravity.g", 2, 1e-2),
+            ("bending.theta_bar", 5, 1e-3),
+        ],
+    );
+    let base = irregular_sheet(8, 4, 21).unwrap();
+    let perm = random_permutation(base.n_vertices(), 9);
+    let scaled = TriMesh::new(
+        base.positions()
+            .iter()
+            .map(|p| Vector3::new(0.3 * p.x, 0.1 * p.y, 0.0))
+            .collect(),
+        base.triangles().to_vec(),
+    )
+    .unwrap();
+    let sheet = cantilever(renumber(&scaled, &perm).unwrap(), 0.3 / 7.0, 2e8);
+    let w2 = check_adjoint(
+        &sheet,
+        true,
+        &[
+            ("bending.k", 3, 1e-3 * k),
+            ("bending.k", 17, 1e-3 * k),
+            ("bending.theta_bar", 11, 1e-3),
+            ("membrane.young", 0, 2e6),
+        ],
+    );
+    assert!(w1 < 1e-6 && w2 < 1e-6, "{w1:.2e} {w2:.2e}");
+}
+
+#[test]
+fn an_indefinite_hessian_is_a_typed_error() {
+    // A strip compressed along its length by moving pins, released from a buckled-symmetric flat state: the
+    // flat state under compression is a saddle.
+    let rest = grid(10, 1, 1.0, 0.1, Diagonal::Alternating).unwrap();
+    let n = rest.n_vertices();
+    let mut system = System::new(
+        n,
+        vec![
+            Box::new(HingeTerm::new(
+                "bending",
+                BendingModel::new(
+                    &rest,
+                    RuntimePsi::new("k * a * (theta - theta_bar).powi(2)", [("k", 1e-4.into())])
+                        .unwrap(),
+                )
+                .unwrap(),
+                Method::Refactored,
+            )),
+            Box::new(StvkMembrane::new(&rest, 1e6, 0.3, 1e-3).unwrap()),
+        ],
+    )
+    .unwrap();
+    let pins = Pins::new(
+        n,
+        (0..n)
+            .filter(|&v| rest.positions()[v].x < 1e-9 || rest.positions()[v].x > 1.0 - 1e-9)
+            .collect(),
+    )
+    .unwrap();
+    let x: Vec<Vector3<f64>> = rest
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(0.9 * p.x, p.y, 0.0))
+        .collect();
+    let mut adjoint = Adjoint::new(&system, &pins).unwrap();
+    match adjoint.factor(&mut system, &x) {
+        Err(AdjointError::NotMinimum { vertex, .. }) => assert!(vertex < n),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        adjoint.solve(&vec![0.0; 3 * n]),
+        Err(AdjointError::NotFactored)
+    ));
+}
+
+#[test]
+fn fitting_recovers_young_s_modulus_of_a_cantilever() {
+    let truth = 2e8;
+    let c = cantilever(
+        grid(16, 2, 0.3, 0.05, Diagonal::Alternating).unwrap(),
+        0.3 / 16.0,
+        truth,
+    );
+    let mut system = cantilever_system(&c, false);
+    let mut newton = tight_newton(&system, &c.pins);
+    let mut target = c.rest.positions().to_vec();
+    newton.minimize(&mut system, &mut target, None).unwrap();
+    // Start 3× too stiff; Young's modulus sets the bending stiffness (plate formula) and the membrane.
+    let start = 3.0 * truth;
+    let k1 = plate_consistent_stiffness(1.0, c.thickness, c.poisson);
+    let variable = FitVariable {
+        name: "material.young".into(),
+        start: vec![start],
+        positive: true,
+        links: vec![
+            Link {
+                parameter: "bending.k".into(),
+                base: vec![k1],
+                exponent: 1.0,
+            },
+            Link {
+                parameter: "membrane.young".into(),
+                base: vec![1.0],
+                exponent: 1.0,
+            },
+        ],
+    };
+    let loss = TargetLoss::all(target.clone());
+    let mut x = c.rest.positions().to_vec();
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![variable],
+        FitOptions::default(),
+    )
+    .unwrap();
+    let r = fit
+        .run(&mut system, &mut x, &mut |x, g| loss.evaluate(x, g))
+        .unwrap();
+    let y = r.values[0][0];
+    println!(
+        "Young's modulus {y:.6e} (truth {truth:.1e}) after {} iterations, {} equilibria, loss {:.2e} → {:.2e} ({})",
+        r.iterations, r.equilibria, r.initial_loss, r.loss, r.stop
+    );
+    assert!((y / truth - 1.0).abs() < 0.01, "{y}");
+    assert!(r.equilibria <= 25, "{}", r.equilibria);
+    assert_eq!(system.parameter("membrane.young").unwrap(), vec![y]);
+}
