@@ -82,8 +82,10 @@ pub struct ParameterOutput<'a> {
     pub lambda: &'a [f64],
     /// `(∂∇E/∂p)ᵀ λ` (`len` entries; requested when `lambda` is not empty).
     pub contracted: &'a mut [f64],
-    /// `∂∇E/∂p` itself (`3n` entries), for a scalar parameter (`len` = 1) only: what forward sensitivities
-    /// `dx*/dp = −H⁻¹ ∂∇E/∂p` need.
+    /// The direction in parameter space (`len` entries, or empty) the gradient's derivative is taken along.
+    pub direction: &'a [f64],
+    /// `Σ_i direction_i ∂∇E/∂p_i` (`3n` entries; requested when `direction` is not empty): what forward
+    /// sensitivities `dx*/dp·d = −H⁻¹ (∂∇E/∂p) d` need.
     pub gradient: &'a mut [f64],
 }
 
@@ -224,7 +226,7 @@ pub trait Energy: Send + Sync {
     }
 
     /// Adds the derivatives with respect to parameter `name` at positions `x` that `out` requests: `∂E/∂p`,
-    /// `(∂∇E/∂p)ᵀ λ`, and for a scalar parameter `∂∇E/∂p`.
+    /// `(∂∇E/∂p)ᵀ λ`, and `(∂∇E/∂p) d` for a direction `d`.
     ///
     /// # Errors
     /// [`EvalError::Parameter`] for an unknown name or buffers of the wrong length; the evaluation's typed
@@ -265,14 +267,9 @@ pub fn check_parameter_output(
             return Err(bad("the contracted derivative", out.contracted.len(), len));
         }
     }
-    if !out.gradient.is_empty() {
-        if len != 1 {
-            return Err(EvalError::Parameter {
-                name: name.to_string(),
-                message: format!(
-                    "has {len} values: the full gradient derivative is for scalar parameters"
-                ),
-            });
+    if !out.direction.is_empty() {
+        if out.direction.len() != len {
+            return Err(bad("the direction", out.direction.len(), len));
         }
         if out.gradient.len() != 3 * n {
             return Err(bad("the gradient derivative", out.gradient.len(), 3 * n));
@@ -596,12 +593,13 @@ where
                 }
                 out.contracted[j] += dd1 * dot;
             }
-            if !out.gradient.is_empty() {
+            if !out.direction.is_empty() {
+                let w = dd1 * out.direction[j];
                 for (c, &v) in h.vertices.iter().enumerate() {
                     let g = &mut out.gradient[3 * v..3 * v + 3];
-                    g[0] += dd1 * grad[c].x;
-                    g[1] += dd1 * grad[c].y;
-                    g[2] += dd1 * grad[c].z;
+                    g[0] += w * grad[c].x;
+                    g[1] += w * grad[c].y;
+                    g[2] += w * grad[c].z;
                 }
             }
         }

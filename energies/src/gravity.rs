@@ -101,6 +101,9 @@ impl Energy for Gravity {
                 if !out.lambda.is_empty() {
                     out.contracted[c] -= m * out.lambda[3 * i + c];
                 }
+                if !out.direction.is_empty() {
+                    out.gradient[3 * i + c] -= m * out.direction[c];
+                }
             }
         }
         Ok(())

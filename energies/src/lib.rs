@@ -98,9 +98,10 @@ pub(crate) mod util {
         if !out.lambda.is_empty() {
             out.contracted[0] += g.iter().zip(out.lambda).map(|(a, b)| a * b).sum::<f64>();
         }
-        if !out.gradient.is_empty() {
+        if !out.direction.is_empty() {
+            let d = out.direction[0];
             for (o, v) in out.gradient.iter_mut().zip(&g) {
-                *o += v;
+                *o += d * v;
             }
         }
         Ok(())

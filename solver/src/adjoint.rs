@@ -67,6 +67,33 @@ pub enum AdjointError {
     /// A fit set-up that cannot work (named).
     #[error("{0}")]
     Setup(String),
+    /// Fitted variables whose effects on the equilibrium cannot be told apart (or a variable without
+    /// effect): fitting them together would return an arbitrary combination.
+    #[error(
+        "{} not separately identifiable from the target: their effects on the equilibrium are proportional (smallest eigenvalue of their sensitivities' correlation matrix {smallest:.1e}); fit fewer of them",
+        quoted_list(variables)
+    )]
+    NotIdentifiable {
+        /// The variables involved (those with a weight above 0.1 in the nearly null combination).
+        variables: Vec<String>,
+        /// The smallest eigenvalue of the correlation matrix of their sensitivities (0: dependent).
+        smallest: f64,
+    },
+    /// A variable whose change does not move the equilibrium at all.
+    #[error("`{variable}` does not change the equilibrium: it cannot be fitted to a shape")]
+    NoEffect {
+        /// The variable.
+        variable: String,
+    },
+}
+
+fn quoted_list(v: &[String]) -> String {
+    let q: Vec<String> = v.iter().map(|s| format!("`{s}`")).collect();
+    match q.len() {
+        0 => "the variables are".into(),
+        1 => format!("{} is", q[0]),
+        _ => format!("{} and {} are", q[..q.len() - 1].join(", "), q[q.len() - 1]),
+    }
 }
 
 /// The exact-Hessian factorization of a system at a state, with pins eliminated, and the solves and
@@ -208,6 +235,7 @@ impl Adjoint {
                 energy: &mut [],
                 lambda: &self.lambda,
                 contracted: &mut contracted,
+                direction: &[],
                 gradient: &mut [],
             },
         )?;
@@ -217,16 +245,32 @@ impl Adjoint {
         Ok(contracted)
     }
 
-    /// Forward sensitivity `dx*/dp = −H⁻¹ ∂g/∂p` of a scalar system parameter (`3n` entries, zero on pinned
-    /// dofs), at the state of the last [`Adjoint::factor`].
+    /// Forward sensitivity `(dx*/dp) d = −H⁻¹ (∂g/∂p) d` of system parameter `name` along the direction `d`
+    /// (one entry per parameter value; `3n` entries out, zero on pinned dofs), at the state of the last
+    /// [`Adjoint::factor`]. Overwrites [`Adjoint::lambda`].
     ///
     /// # Errors
-    /// As [`Adjoint::solve`]; [`EvalError::Parameter`] for an unknown or non-scalar parameter.
+    /// As [`Adjoint::solve`]; [`EvalError::Parameter`] for an unknown parameter or a direction of the wrong
+    /// length.
     pub fn sensitivity(
         &mut self,
         system: &mut System,
         x: &[Vector3<f64>],
         name: &str,
+        direction: &[f64],
+    ) -> Result<Vec<f64>, AdjointError> {
+        let dg = self.gradient_derivative(system, x, name, direction)?;
+        let s = self.solve(&dg)?;
+        Ok(s.iter().map(|v| -v).collect())
+    }
+
+    /// `(∂g/∂p) d` (`3n` entries).
+    fn gradient_derivative(
+        &self,
+        system: &mut System,
+        x: &[Vector3<f64>],
+        name: &str,
+        direction: &[f64],
     ) -> Result<Vec<f64>, AdjointError> {
         if !self.factored {
             return Err(AdjointError::NotFactored);
@@ -239,11 +283,11 @@ impl Adjoint {
                 energy: &mut [],
                 lambda: &[],
                 contracted: &mut [],
+                direction,
                 gradient: &mut dg,
             },
         )?;
-        let s = self.solve(&dg)?;
-        Ok(s.iter().map(|v| -v).collect())
+        Ok(dg)
     }
 }
 
@@ -318,16 +362,40 @@ impl TargetLoss {
 /// A loss on the equilibrium: `L(x)`, writing `∂L/∂x` (`3n` entries) into its second argument.
 pub type LossFn<'a> = dyn FnMut(&[Vector3<f64>], &mut [f64]) -> Result<f64, AdjointError> + 'a;
 
-/// How one fitted variable sets system parameters: `parameter = base · u^exponent`, entry by entry (a scalar
-/// variable scales every entry of `base`; a field variable has as many entries as the parameter).
+/// How a fitted variable sets a system parameter (`TERM.NAME`, [`System::parameters`]), entry by entry: a
+/// field variable has one value per parameter entry, a scalar one acts on every entry.
+///
+/// A parameter's value is its value when the [`Fit`] was made (`p₀`), times the factor `(u/u₀)^e` of every
+/// power link to it, with `p₀` replaced by `u` when a value link sets it:
+///
+/// ```text
+/// p = (u_value or p₀) · Π_power (u / u₀)^e
+/// ```
+///
+/// so Young's modulus and the thickness both scale a bending stiffness `k ∝ Y h³` (exponents 1 and 3).
 #[derive(Debug, Clone, PartialEq)]
-pub struct Link {
-    /// The system parameter (`TERM.NAME`, [`System::parameters`]).
-    pub parameter: String,
-    /// Its value at `u = 1` (as many entries as the parameter).
-    pub base: Vec<f64>,
-    /// The power of `u`.
-    pub exponent: f64,
+pub enum Link {
+    /// The parameter scales as `(u/u₀)^exponent` (a positive variable).
+    Power {
+        /// The system parameter.
+        parameter: String,
+        /// The power.
+        exponent: f64,
+    },
+    /// The parameter is the variable itself (at most one value link per parameter).
+    Value {
+        /// The system parameter.
+        parameter: String,
+    },
+}
+
+impl Link {
+    /// The parameter it sets.
+    pub fn parameter(&self) -> &str {
+        match self {
+            Link::Power { parameter, .. } | Link::Value { parameter } => parameter,
+        }
+    }
 }
 
 /// A variable the fit adjusts: a name for reports, its starting value(s) and the system parameters it sets.
@@ -360,6 +428,9 @@ pub struct FitOptions {
     /// The largest change of an optimisation variable in one step (for `positive` variables a factor of
     /// `exp(max_step)`).
     pub max_step: f64,
+    /// Scalar variables are refused as not separately identifiable when the smallest eigenvalue of the
+    /// correlation matrix of their equilibrium sensitivities (at the start) is below this (0: no check).
+    pub identifiability_tolerance: f64,
     /// Weight of the smoothness regularizer `w Σ_(i,j) (s_i − s_j)²` over [`FitOptions::smooth_pairs`] of
     /// field variables' entries (0: off).
     pub smoothness: f64,
@@ -376,6 +447,7 @@ impl Default for FitOptions {
             relative_decrease_tolerance: 1e-12,
             memory: 8,
             max_step: 1.0,
+            identifiability_tolerance: 1e-4,
             smoothness: 0.0,
             smooth_pairs: Vec::new(),
         }
@@ -411,6 +483,8 @@ pub struct Fit<'a> {
     adjoint: Adjoint,
     equilibria: usize,
     grad_l: Vec<f64>,
+    /// Every linked parameter and its value when the fit was made.
+    linked: Vec<(String, Vec<f64>)>,
 }
 
 impl std::fmt::Debug for Fit<'_> {
@@ -463,21 +537,44 @@ impl<'a> Fit<'a> {
                 )));
             }
             for l in &v.links {
-                let Some(p) = known.iter().find(|p| p.name == l.parameter) else {
+                let Some(p) = known.iter().find(|p| p.name == l.parameter()) else {
                     return Err(AdjointError::Eval(hinge_core::energy::unknown_parameter(
-                        &l.parameter,
+                        l.parameter(),
                         &known,
                     )));
                 };
-                if l.base.len() != p.len || !(v.start.len() == 1 || v.start.len() == p.len) {
+                if !(v.start.len() == 1 || v.start.len() == p.len) {
                     return Err(AdjointError::Setup(format!(
-                        "`{}`: parameter `{}` has {} values; the link has {} and the variable {}",
+                        "`{}`: parameter `{}` has {} values, the variable {}",
                         v.name,
-                        l.parameter,
+                        l.parameter(),
                         p.len,
-                        l.base.len(),
                         v.start.len()
                     )));
+                }
+                if matches!(l, Link::Power { .. }) && !v.positive {
+                    return Err(AdjointError::Setup(format!(
+                        "`{}`: a power link (to `{}`) needs a positive variable",
+                        v.name,
+                        l.parameter()
+                    )));
+                }
+            }
+        }
+        let mut linked: Vec<(String, Vec<f64>)> = Vec::new();
+        let mut value_set: Vec<&str> = Vec::new();
+        for v in &variables {
+            for l in &v.links {
+                if !linked.iter().any(|(n, _)| n == l.parameter()) {
+                    linked.push((l.parameter().to_string(), system.parameter(l.parameter())?));
+                }
+                if let Link::Value { parameter } = l {
+                    if value_set.contains(&parameter.as_str()) {
+                        return Err(AdjointError::Setup(format!(
+                            "parameter `{parameter}` is set by two variables"
+                        )));
+                    }
+                    value_set.push(parameter);
                 }
             }
         }
@@ -491,6 +588,7 @@ impl<'a> Fit<'a> {
         Ok(Self {
             adjoint: Adjoint::new(system, pins)?,
             grad_l: vec![0.0; 3 * system.n_vertices()],
+            linked,
             variables,
             options,
             newton,
@@ -529,20 +627,53 @@ impl<'a> Fit<'a> {
             .collect()
     }
 
+    /// Every linked parameter's values at the variables' values `u`, and for each the product of its power
+    /// factors (what a value link's derivative is).
+    fn parameter_values(&self, u: &[Vec<f64>]) -> Vec<(Vec<f64>, Vec<f64>)> {
+        self.linked
+            .iter()
+            .map(|(name, p0)| {
+                let mut value = p0.clone();
+                let mut factor = vec![1.0; p0.len()];
+                for (v, uv) in self.variables.iter().zip(u) {
+                    for l in &v.links {
+                        if l.parameter() != name {
+                            continue;
+                        }
+                        for i in 0..p0.len() {
+                            let j = if uv.len() == 1 { 0 } else { i };
+                            match l {
+                                Link::Power { exponent, .. } => {
+                                    factor[i] *= (uv[j] / v.start[j]).powf(*exponent);
+                                }
+                                Link::Value { .. } => value[i] = uv[j],
+                            }
+                        }
+                    }
+                }
+                let values = value.iter().zip(&factor).map(|(a, b)| a * b).collect();
+                (values, factor)
+            })
+            .collect()
+    }
+
     /// Sets every linked parameter from the variables' values `u`.
     fn apply(&self, system: &mut System, u: &[Vec<f64>]) -> Result<(), AdjointError> {
-        for (v, uv) in self.variables.iter().zip(u) {
-            for l in &v.links {
-                let vals: Vec<f64> = l
-                    .base
-                    .iter()
-                    .enumerate()
-                    .map(|(i, b)| b * uv[if uv.len() == 1 { 0 } else { i }].powf(l.exponent))
-                    .collect();
-                system.set_parameter(&l.parameter, &vals)?;
-            }
+        for ((name, _), (values, _)) in self.linked.iter().zip(self.parameter_values(u)) {
+            system.set_parameter(name, &values)?;
         }
         Ok(())
+    }
+
+    /// `∂p_i/∂s_j` of link `l` of variable `v` (values `uv`) for parameter entry `i` (`j` the variable's
+    /// entry acting on it): `p e / u` for a power link, the power factors for a value link, times `u` for a
+    /// positive variable (`s = ln u`).
+    fn link_derivative(l: &Link, positive: bool, u: f64, value: f64, factor: f64) -> f64 {
+        let d = match l {
+            Link::Power { exponent, .. } => value * exponent / u,
+            Link::Value { .. } => factor,
+        };
+        if positive { d * u } else { d }
     }
 
     /// The regularizer's value and gradient (added to `grad`).
@@ -588,26 +719,100 @@ impl<'a> Fit<'a> {
         self.adjoint.factor(system, x)?;
         self.adjoint.solve(&self.grad_l)?;
         let mut grad = vec![0.0; s.len()];
+        let values = self.parameter_values(&u);
+        let mut dl_dp: Vec<Option<Vec<f64>>> = vec![None; self.linked.len()];
         let mut k = 0;
         for (v, uv) in self.variables.iter().zip(&u) {
             for l in &v.links {
-                let dp = self.adjoint.parameter_gradient(system, x, &l.parameter)?;
-                // p_i = b_i u^e: dL/du = Σ_i dL/dp_i · b_i e u^(e−1).
-                for (i, (&g, &b)) in dp.iter().zip(&l.base).enumerate() {
-                    let j = if uv.len() == 1 { 0 } else { i };
-                    let du = b * l.exponent * uv[j].powf(l.exponent - 1.0);
-                    grad[k + j] += g * du;
+                let Some(pi) = self.linked.iter().position(|(n, _)| n == l.parameter()) else {
+                    continue;
+                };
+                if dl_dp[pi].is_none() {
+                    dl_dp[pi] = Some(self.adjoint.parameter_gradient(system, x, l.parameter())?);
                 }
-            }
-            if v.positive {
-                for j in 0..uv.len() {
-                    grad[k + j] *= uv[j];
+                let (pv, factor) = &values[pi];
+                if let Some(dp) = &dl_dp[pi] {
+                    for (i, &g) in dp.iter().enumerate() {
+                        let j = if uv.len() == 1 { 0 } else { i };
+                        grad[k + j] +=
+                            g * Self::link_derivative(l, v.positive, uv[j], pv[i], factor[i]);
+                    }
                 }
             }
             k += uv.len();
         }
         let r = self.regularizer(s, &mut grad);
         Ok((l + r, grad))
+    }
+
+    /// Checks that the scalar variables move the equilibrium `x` (solved at the start values, with the
+    /// adjoint factored there) in independent ways: the sensitivity `dx*/ds_j` of every scalar variable
+    /// (`s = ln u` for positive ones), their correlation matrix, its smallest eigenvalue against
+    /// [`FitOptions::identifiability_tolerance`].
+    fn check_identifiable(
+        &mut self,
+        system: &mut System,
+        x: &[Vector3<f64>],
+        u: &[Vec<f64>],
+    ) -> Result<(), AdjointError> {
+        let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
+        for (v, uv) in self.variables.iter().zip(u) {
+            if uv.len() != 1 {
+                continue;
+            }
+            let mut col = vec![0.0; 3 * x.len()];
+            let values = self.parameter_values(u);
+            for l in &v.links {
+                let Some(pi) = self.linked.iter().position(|(n, _)| n == l.parameter()) else {
+                    continue;
+                };
+                let (pv, factor) = &values[pi];
+                let direction: Vec<f64> = pv
+                    .iter()
+                    .zip(factor)
+                    .map(|(&p, &f)| Self::link_derivative(l, v.positive, uv[0], p, f))
+                    .collect();
+                let s = self
+                    .adjoint
+                    .sensitivity(system, x, l.parameter(), &direction)?;
+                for (c, si) in col.iter_mut().zip(&s) {
+                    *c += si;
+                }
+            }
+            let norm = norm(&col);
+            if !(norm > 0.0) {
+                return Err(AdjointError::NoEffect {
+                    variable: v.name.clone(),
+                });
+            }
+            columns.push((v.name.clone(), col.iter().map(|c| c / norm).collect()));
+        }
+        let m = columns.len();
+        if m < 2 || self.options.identifiability_tolerance <= 0.0 {
+            return Ok(());
+        }
+        let c =
+            hinge_core::nalgebra::DMatrix::from_fn(m, m, |i, j| dot(&columns[i].1, &columns[j].1));
+        let eig = c.symmetric_eigen();
+        let (k, &smallest) = eig
+            .eigenvalues
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+            .ok_or_else(|| AdjointError::Setup("no variables".into()))?;
+        if smallest < self.options.identifiability_tolerance {
+            let variables = columns
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| eig.eigenvectors[(*i, k)].abs() > 0.1)
+                .map(|(_, (n, _))| n.clone())
+                .collect();
+            return Err(AdjointError::NotIdentifiable {
+                variables,
+                smallest: smallest.max(0.0),
+            });
+        }
+        Ok(())
     }
 
     /// Runs L-BFGS from the variables' start values and the state `x` (an initial guess of the first
@@ -626,12 +831,16 @@ impl<'a> Fit<'a> {
         loss: &mut LossFn,
     ) -> Result<FitResult, AdjointError> {
         let s0 = self.to_s();
-        let start = self.unpack(&s0);
+        // The exact start values (exp(ln u) need not be u): what a failed run puts back.
+        let start: Vec<Vec<f64>> = self.variables.iter().map(|v| v.start.clone()).collect();
         let restore = |fit: &Self, system: &mut System| {
             let _ = fit.apply(system, &start);
         };
         let mut xw = x.to_vec();
-        let first = match self.evaluate(system, &s0, &mut xw, loss) {
+        let first = match self
+            .evaluate(system, &s0, &mut xw, loss)
+            .and_then(|v| self.check_identifiable(system, &xw, &start).map(|()| v))
+        {
             Ok(v) => v,
             Err(e) => {
                 restore(self, system);
