@@ -2,6 +2,7 @@
 //! for other front ends (the Python package runs scenes through it).
 
 pub mod files;
+pub mod fit;
 pub mod limits;
 pub mod run;
 pub mod scene;

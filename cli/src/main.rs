@@ -55,6 +55,9 @@ enum Command {
     Run(run::RunArgs),
     /// The paper's evaluation and more: Hessian accuracy, cost fits, time shares, error against run time.
     Report(report::ReportArgs),
+    /// Fit scene keys (material, ψ parameters, rest angles) so that the static equilibrium matches a measured
+    /// shape; prints the JSON result, writes the fitted scene.
+    Fit(hinge_cli::fit::FitArgs),
     /// Stability on stiff and extreme cases: a table of cases, each passing or failing with its figures.
     Stability(stability::StabilityArgs),
     /// List the built-in scenes with one line each, or print one's TOML (`hinge scenes show NAME`).
@@ -102,6 +105,7 @@ fn main() -> ExitCode {
         Some(Command::Run(args)) => run_job(args),
         Some(Command::Report(args)) => report::run(args),
         Some(Command::Stability(args)) => stability::run(args),
+        Some(Command::Fit(args)) => hinge_cli::fit::run(args),
         Some(Command::Scenes { action, name }) => scenes(action.as_deref(), name.as_deref()),
     };
     match result {

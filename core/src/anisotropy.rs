@@ -367,4 +367,32 @@ impl<P: HingePsi> HingePsi for Anisotropic<P> {
     fn psi_dual<D: DualNum<Primitive = f64> + Copy>(&self, p: &Self::Params, theta: D) -> D {
         self.inner.psi_dual(&p.0, theta) * p.1
     }
+
+    fn has_parameter_derivatives(&self) -> bool {
+        self.inner.has_parameter_derivatives()
+    }
+
+    /// The inner energy's parameters (the factors are fixed by the mesh's directions, not fitted).
+    fn parameters(&self) -> Vec<crate::psi::PsiParameter> {
+        self.inner.parameters()
+    }
+
+    fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
+        if !self.inner.parameter_derivatives(q, theta, out) {
+            return false;
+        }
+        let s = self.factors.get(q.hinge).copied().unwrap_or(f64::NAN);
+        for d in out.iter_mut() {
+            *d = [s * d[0], s * d[1]];
+        }
+        true
+    }
+
+    fn parameter_values(&self, index: usize) -> Option<Vec<f64>> {
+        self.inner.parameter_values(index)
+    }
+
+    fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> Result<(), PsiError> {
+        self.inner.set_parameter_values(index, values)
+    }
 }

@@ -418,6 +418,11 @@ pub struct FitOptions {
     pub max_iterations: usize,
     /// Stop when the loss is at most this.
     pub loss_tolerance: f64,
+    /// Stop when the loss is at most this times its starting value (a target the model reproduces exactly
+    /// is then reached to the equilibria's own accuracy).
+    pub relative_loss_tolerance: f64,
+    /// Line-search trials (each an equilibrium solve) before an iteration gives up.
+    pub max_line_search: usize,
     /// Stop when the gradient norm (with respect to the optimisation variables) is at most this times its
     /// first value.
     pub relative_gradient_tolerance: f64,
@@ -443,6 +448,8 @@ impl Default for FitOptions {
         Self {
             max_iterations: 50,
             loss_tolerance: 0.0,
+            relative_loss_tolerance: 1e-12,
+            max_line_search: 10,
             relative_gradient_tolerance: 1e-8,
             relative_decrease_tolerance: 1e-12,
             memory: 8,
@@ -485,6 +492,21 @@ pub struct Fit<'a> {
     grad_l: Vec<f64>,
     /// Every linked parameter and its value when the fit was made.
     linked: Vec<(String, Vec<f64>)>,
+    /// Called after every accepted L-BFGS iteration (progress reports).
+    observer: Option<Box<dyn FnMut(&FitProgress) + 'a>>,
+}
+
+/// What a [`Fit`]'s observer sees after every accepted iteration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitProgress {
+    /// Iterations so far.
+    pub iteration: usize,
+    /// The loss now.
+    pub loss: f64,
+    /// Equilibrium solves so far.
+    pub equilibria: usize,
+    /// The variables' values now.
+    pub values: Vec<Vec<f64>>,
 }
 
 impl std::fmt::Debug for Fit<'_> {
@@ -589,11 +611,17 @@ impl<'a> Fit<'a> {
             adjoint: Adjoint::new(system, pins)?,
             grad_l: vec![0.0; 3 * system.n_vertices()],
             linked,
+            observer: None,
             variables,
             options,
             newton,
             equilibria: 0,
         })
+    }
+
+    /// Calls `observer` after every accepted iteration (to report progress).
+    pub fn observe(&mut self, observer: impl FnMut(&FitProgress) + 'a) {
+        self.observer = Some(Box::new(observer));
     }
 
     /// Equilibrium solves so far.
@@ -859,7 +887,9 @@ impl<'a> Fit<'a> {
         let mut iterations = 0;
         let mut stop = "iteration limit";
         while iterations < self.options.max_iterations {
-            if cur.loss <= self.options.loss_tolerance {
+            if cur.loss <= self.options.loss_tolerance
+                || cur.loss <= self.options.relative_loss_tolerance * initial_loss
+            {
                 stop = "loss tolerance";
                 break;
             }
@@ -883,7 +913,7 @@ impl<'a> Fit<'a> {
                 1.0
             };
             let mut accepted = None;
-            for _ in 0..30 {
+            for _ in 0..self.options.max_line_search.max(1) {
                 let s: Vec<f64> = cur.s.iter().zip(&d).map(|(a, b)| a + t * b).collect();
                 let mut xt = cur.x.clone();
                 match self.evaluate(system, &s, &mut xt, loss) {
@@ -925,6 +955,17 @@ impl<'a> Fit<'a> {
             }
             let decrease = cur.loss - next.loss;
             cur = next;
+            if self.observer.is_some() {
+                let progress = FitProgress {
+                    iteration: iterations,
+                    loss: cur.loss,
+                    equilibria: self.equilibria,
+                    values: self.unpack(&cur.s),
+                };
+                if let Some(f) = self.observer.as_mut() {
+                    f(&progress);
+                }
+            }
             if decrease <= self.options.relative_decrease_tolerance * cur.loss.abs() {
                 stop = "loss no longer decreasing";
                 break;

@@ -1,0 +1,490 @@
+//! `hinge fit`: the scene keys that make a scene's static equilibrium match a measured shape.
+//!
+//! The scene is built as `hinge run --static` builds it; each key becomes a variable of
+//! [`hinge_solver::adjoint::Fit`] linked to the system parameters it sets:
+//!
+//! | key | sets | fitted as |
+//! |---|---|---|
+//! | `material.young` | bending `k` (∝ Y, when k comes from the material), membrane (∝ Y) | positive |
+//! | `material.thickness` | bending `k` (∝ h³), membrane (∝ h) | positive |
+//! | `material.density` | gravity (∝ ρ: the weight per area) | positive |
+//! | `bending.params.NAME` | the custom ψ's parameter (scalar or per hinge) | positive if its start is |
+//! | `bending.rest_angles` | the rest angles θ̄, one per hinge | any sign |
+//!
+//! The loss is the sum of squared distances of every vertex to the target's. Stdout carries only the
+//! JSON result; progress goes to stderr; the fitted scene (`fitted.toml`, per-hinge values beside it) and the
+//! fitted equilibrium (`fitted.obj`) go to `--out`.
+
+use std::path::{Path, PathBuf};
+
+use hinge_core::TriMesh;
+use hinge_core::nalgebra::Vector3;
+use hinge_solver::adjoint::{Fit, FitOptions, FitVariable, Link, TargetLoss};
+use hinge_solver::newton::{Newton, NewtonParams};
+
+use crate::run::{Built, STATIC_ITERATIONS, build};
+use crate::scene::Scene;
+
+/// The keys `hinge fit` accepts (`bending.params.NAME` for any custom-ψ parameter).
+pub const KEYS: &str = "material.young, material.thickness, material.density, bending.params.NAME, bending.rest_angles";
+
+/// Arguments of `hinge fit`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct FitArgs {
+    /// Scene: a built-in name (`hinge scenes`) or a TOML file.
+    pub scene: String,
+    /// The measured shape: a mesh file (OBJ, OFF or PLY) with the scene mesh's vertices and faces.
+    #[arg(long)]
+    pub target: PathBuf,
+    /// Scene keys to fit, comma-separated: material.young, material.thickness, material.density,
+    /// bending.params.NAME, bending.rest_angles.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub fit: Vec<String>,
+    /// Mesh resolution, as for `hinge run`.
+    #[arg(long)]
+    pub resolution: Option<usize>,
+    /// Output directory for fitted.toml and fitted.obj (default: out/fit-SCENE).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// L-BFGS iteration limit.
+    #[arg(long, default_value_t = 50)]
+    pub max_iterations: usize,
+    /// Weight of the smoothness regularizer on per-hinge keys (squared differences of the log values, or
+    /// of the values for rest angles, over adjacent hinges; 0: none).
+    #[arg(long, default_value_t = 0.0)]
+    pub smoothness: f64,
+    /// Worker threads (default: all logical CPUs).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// What `hinge fit` found.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    /// Every key with its fitted value(s).
+    pub values: Vec<(String, Vec<f64>)>,
+    /// The loss at the fitted values.
+    pub loss: f64,
+    /// L-BFGS iterations.
+    pub iterations: usize,
+    /// Equilibrium solves, line-search trials included.
+    pub equilibria: usize,
+    /// The fitted equilibrium.
+    pub x: Vec<Vector3<f64>>,
+}
+
+impl Fitted {
+    /// The JSON `hinge fit` prints: `{"fitted": {KEY: value or [values]}, "loss", "iterations",
+    /// "equilibria"}`.
+    pub fn json(&self) -> serde_json::Value {
+        let fitted: serde_json::Map<String, serde_json::Value> = self
+            .values
+            .iter()
+            .map(|(k, v)| {
+                let value = if v.len() == 1 {
+                    serde_json::json!(v[0])
+                } else {
+                    serde_json::json!(v)
+                };
+                (k.clone(), value)
+            })
+            .collect();
+        serde_json::json!({
+            "fitted": fitted,
+            "loss": self.loss,
+            "iterations": self.iterations,
+            "equilibria": self.equilibria,
+        })
+    }
+}
+
+/// The variable of `key` in the system `b` built from `scene`.
+///
+/// # Errors
+/// A one-line message naming the key.
+fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> {
+    let has = |name: &str| b.system.parameters().iter().any(|p| p.name == name);
+    let value = |name: &str| b.system.parameter(name).map_err(|e| format!("{key}: {e}"));
+    let m = &scene.material;
+    // The bending stiffness follows the material unless the custom ψ's `k` is set explicitly.
+    let k_from_material = has("bending.k")
+        && !(scene.bending.energy == "custom" && scene.bending.params.contains_key("k"));
+    let power = |parameter: &str, exponent: f64| Link::Power {
+        parameter: parameter.into(),
+        exponent,
+    };
+    let corotational = m.membrane == "corotational";
+    let membrane = |stvk_parameter: &str| -> Link {
+        if corotational {
+            power("corotational-membrane.stiffness", 1.0)
+        } else {
+            power(stvk_parameter, 1.0)
+        }
+    };
+    let positive_start = |v: f64| -> Result<Vec<f64>, String> {
+        if v > 0.0 && v.is_finite() {
+            Ok(vec![v])
+        } else {
+            Err(format!(
+                "{key}: the start value {v} must be positive (it is fitted on a log scale)"
+            ))
+        }
+    };
+    let mut links = Vec::new();
+    let (start, positive) = match key {
+        "material.young" => {
+            if k_from_material {
+                links.push(power("bending.k", 1.0));
+            }
+            links.push(membrane("membrane.young"));
+            (positive_start(m.young)?, true)
+        }
+        "material.thickness" => {
+            if k_from_material {
+                links.push(power("bending.k", 3.0));
+            }
+            links.push(membrane("membrane.thickness"));
+            (positive_start(m.thickness)?, true)
+        }
+        "material.density" => {
+            links.push(power("gravity.g", 1.0));
+            (positive_start(m.density)?, true)
+        }
+        "bending.rest_angles" => {
+            links.push(Link::Value {
+                parameter: "bending.theta_bar".into(),
+            });
+            (value("bending.theta_bar")?, false)
+        }
+        _ => match key.strip_prefix("bending.params.") {
+            Some(name) if scene.bending.energy == "custom" => {
+                if !scene.bending.params.contains_key(name) {
+                    return Err(if name == "k" && k_from_material {
+                        format!(
+                            "{key}: k comes from the material here; fit material.young (or set bending.params.k)"
+                        )
+                    } else {
+                        format!(
+                            "{key}: the scene's [bending.params] has no `{name}` (it has: {})",
+                            scene
+                                .bending
+                                .params
+                                .keys()
+                                .cloned()
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        )
+                    });
+                }
+                let parameter = format!("bending.{name}");
+                let start = value(&parameter)?;
+                let positive = start.iter().all(|v| *v > 0.0);
+                links.push(if positive {
+                    power(&parameter, 1.0)
+                } else {
+                    Link::Value { parameter }
+                });
+                (start, positive)
+            }
+            Some(_) => {
+                return Err(format!(
+                    "{key}: only a custom ψ (bending.energy = \"custom\") has parameters"
+                ));
+            }
+            None => return Err(format!("unknown key `{key}` (fittable: {KEYS})")),
+        },
+    };
+    Ok(FitVariable {
+        name: key.to_string(),
+        start,
+        positive,
+        links,
+    })
+}
+
+/// Pairs of hinges that share a triangle (the smoothness regularizer's neighbours), for variable `k`.
+fn adjacent_hinges(rest: &TriMesh, k: usize) -> Result<Vec<(usize, usize, usize)>, String> {
+    let topo = hinge_core::Topology::new(rest.n_vertices(), rest.triangles())
+        .map_err(|e| e.to_string())?;
+    let mut of_edge = std::collections::HashMap::new();
+    for (i, h) in topo.hinges().iter().enumerate() {
+        let (a, b) = (h.vertices[1], h.vertices[2]);
+        of_edge.insert((a.min(b), a.max(b)), i);
+    }
+    let mut pairs = Vec::new();
+    for t in rest.triangles() {
+        let inner: Vec<usize> = (0..3)
+            .filter_map(|c| {
+                let (a, b) = (t[c], t[(c + 1) % 3]);
+                of_edge.get(&(a.min(b), a.max(b))).copied()
+            })
+            .collect();
+        for i in 0..inner.len() {
+            for j in i + 1..inner.len() {
+                pairs.push((k, inner[i], inner[j]));
+            }
+        }
+    }
+    Ok(pairs)
+}
+
+/// Fits `keys` of `scene` (mesh `rest`) so that its static equilibrium matches `target`.
+///
+/// # Errors
+/// A one-line message: an unknown or repeated key, a non-positive start of a positive key, a target that
+/// does not match the mesh, an equilibrium that does not converge, keys not separately identifiable.
+pub fn fit_scene(
+    scene: &Scene,
+    rest: &TriMesh,
+    target: &TriMesh,
+    target_name: &str,
+    keys: &[String],
+    options: FitOptions,
+) -> Result<Fitted, String> {
+    if target.n_vertices() != rest.n_vertices() {
+        return Err(format!(
+            "{target_name}: {} vertices, the scene's mesh has {}",
+            target.n_vertices(),
+            rest.n_vertices()
+        ));
+    }
+    if let Some(t) =
+        (0..rest.n_triangles()).find(|&t| target.triangles().get(t) != rest.triangles().get(t))
+    {
+        return Err(format!(
+            "{target_name}: face {} differs from the scene mesh's ({:?} vs {:?}): not the same topology",
+            t + 1,
+            target.triangles().get(t).map(|f| f.map(|v| v + 1)),
+            rest.triangles()[t].map(|v| v + 1)
+        ));
+    }
+    if target.n_triangles() != rest.n_triangles() {
+        return Err(format!(
+            "{target_name}: {} faces, the scene's mesh has {}",
+            target.n_triangles(),
+            rest.n_triangles()
+        ));
+    }
+    let b = build(scene, rest, false)?;
+    let mut variables = Vec::new();
+    for (i, key) in keys.iter().enumerate() {
+        if keys[..i].contains(key) {
+            return Err(format!("{key}: given twice"));
+        }
+        variables.push(variable(scene, &b, key)?);
+    }
+    let mut options = options;
+    if options.smoothness > 0.0 {
+        for (k, v) in variables.iter().enumerate() {
+            if v.start.len() > 1 {
+                options.smooth_pairs.extend(adjacent_hinges(rest, k)?);
+            }
+        }
+    }
+    let Built {
+        mut system,
+        pins,
+        solver,
+        params,
+        ..
+    } = b;
+    let params = NewtonParams {
+        max_iterations: params.max_iterations.max(STATIC_ITERATIONS),
+        ..params
+    };
+    let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
+    let loss = TargetLoss::all(target.positions().to_vec());
+    let mut x = rest.positions().to_vec();
+    let mut fit =
+        Fit::new(&system, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
+    fit.observe(|p| {
+        eprintln!(
+            "fit: iteration {:3}: loss {:.6e} ({} equilibria)",
+            p.iteration, p.loss, p.equilibria
+        );
+    });
+    let r = fit
+        .run(&mut system, &mut x, &mut |x, g| loss.evaluate(x, g))
+        .map_err(|e| e.to_string())?;
+    eprintln!(
+        "fit: stopped ({}): loss {:.3e} → {:.3e} in {} iterations, {} equilibria",
+        r.stop, r.initial_loss, r.loss, r.iterations, r.equilibria
+    );
+    Ok(Fitted {
+        values: keys.iter().cloned().zip(r.values).collect(),
+        loss: r.loss,
+        iterations: r.iterations,
+        equilibria: r.equilibria,
+        x: r.x,
+    })
+}
+
+/// The scene's TOML text (a built-in's, or the file's).
+fn scene_text(name_or_path: &str) -> Result<String, String> {
+    match crate::scene::BUILT_IN
+        .iter()
+        .find(|(n, _)| *n == name_or_path)
+    {
+        Some((_, text)) => Ok((*text).to_string()),
+        None => std::fs::read_to_string(name_or_path).map_err(|e| format!("{name_or_path}: {e}")),
+    }
+}
+
+/// Writes numbers one per line.
+fn write_numbers(path: &Path, v: &[f64]) -> Result<(), String> {
+    let text: String = v.iter().map(|x| format!("{x:e}\n")).collect();
+    std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The fitted scene: the original TOML with the fitted keys set (per-hinge values in files beside it) and
+/// relative file paths made absolute (the fitted scene lives elsewhere).
+fn fitted_toml(
+    args: &FitArgs,
+    scene: &Scene,
+    fitted: &Fitted,
+    dir: &Path,
+) -> Result<String, String> {
+    let text = scene_text(&args.scene)?;
+    let mut doc: toml::Table = toml::from_str(&text).map_err(|e| format!("{}: {e}", args.scene))?;
+    let base = scene.base.clone();
+    let absolute = |p: &str| -> String {
+        match &base {
+            Some(b) if Path::new(p).is_relative() => {
+                let joined = b.join(p);
+                std::fs::canonicalize(&joined)
+                    .unwrap_or(joined)
+                    .display()
+                    .to_string()
+            }
+            _ => p.to_string(),
+        }
+    };
+    let table = |doc: &mut toml::Table, name: &str| -> Result<toml::Table, String> {
+        match doc.remove(name) {
+            Some(toml::Value::Table(t)) => Ok(t),
+            None => Ok(toml::Table::new()),
+            Some(_) => Err(format!("{}: `{name}` is not a table", args.scene)),
+        }
+    };
+    let mut mesh = table(&mut doc, "mesh")?;
+    if let Some(toml::Value::String(p)) = mesh.get("obj").cloned() {
+        mesh.insert("obj".into(), toml::Value::String(absolute(&p)));
+    }
+    if let Some(cells) = scene.mesh.cells {
+        mesh.insert(
+            "cells".into(),
+            toml::Value::Array(
+                cells
+                    .iter()
+                    .map(|&c| toml::Value::Integer(c as i64))
+                    .collect(),
+            ),
+        );
+        mesh.remove("resolutions");
+    }
+    if let Some(s) = scene.mesh.subdivisions {
+        mesh.insert("subdivisions".into(), toml::Value::Integer(s as i64));
+    }
+    doc.insert("mesh".into(), toml::Value::Table(mesh));
+    let mut material = table(&mut doc, "material")?;
+    let mut bending = table(&mut doc, "bending")?;
+    let mut params = match bending.remove("params") {
+        Some(toml::Value::Table(t)) => t,
+        _ => toml::Table::new(),
+    };
+    for (_, v) in params.iter_mut() {
+        if let toml::Value::String(p) = v {
+            *p = absolute(p);
+        }
+    }
+    if let Some(toml::Value::String(p)) = bending.get("rest_angles").cloned() {
+        bending.insert("rest_angles".into(), toml::Value::String(absolute(&p)));
+    }
+    for (key, values) in &fitted.values {
+        let scalar = values.len() == 1;
+        match key.as_str() {
+            "material.young" | "material.thickness" | "material.density" => {
+                let name = &key["material.".len()..];
+                material.insert(name.into(), toml::Value::Float(values[0]));
+            }
+            "bending.rest_angles" => {
+                let file = dir.join("fitted_rest_angles.txt");
+                write_numbers(&file, values)?;
+                bending.insert(
+                    "rest_angles".into(),
+                    toml::Value::String("fitted_rest_angles.txt".into()),
+                );
+            }
+            _ => {
+                let name = key.trim_start_matches("bending.params.");
+                if scalar {
+                    params.insert(name.into(), toml::Value::Float(values[0]));
+                } else {
+                    let file = format!("fitted_{name}.txt");
+                    write_numbers(&dir.join(&file), values)?;
+                    params.insert(name.into(), toml::Value::String(file));
+                }
+            }
+        }
+    }
+    if !params.is_empty() {
+        bending.insert("params".into(), toml::Value::Table(params));
+    }
+    doc.insert("material".into(), toml::Value::Table(material));
+    doc.insert("bending".into(), toml::Value::Table(bending));
+    let body = toml::to_string(&doc).map_err(|e| format!("fitted scene: {e}"))?;
+    Ok(format!(
+        "# Fitted by `hinge fit {}` to {} (keys: {}).\n{body}",
+        args.scene,
+        args.target.display(),
+        args.fit.join(", ")
+    ))
+}
+
+/// `hinge fit`: prints the JSON result on stdout, writes `fitted.toml` and `fitted.obj` to the output
+/// directory.
+///
+/// # Errors
+/// A one-line message (see [`fit_scene`]).
+pub fn run(args: FitArgs) -> Result<(), String> {
+    let (mut scene, base) = crate::scene::load(&args.scene)?;
+    if let Some(r) = args.resolution {
+        scene.set_resolution(r)?;
+    }
+    let (threads, warning) = crate::limits::threads(args.threads)?;
+    if let Some(w) = warning {
+        eprintln!("hinge: {w}");
+    }
+    let rest = scene.rest_mesh(base.as_deref())?;
+    let target = crate::files::read(&args.target)?;
+    let name = args.target.display().to_string();
+    let options = FitOptions {
+        max_iterations: args.max_iterations,
+        smoothness: args.smoothness,
+        ..FitOptions::default()
+    };
+    if !(args.smoothness >= 0.0 && args.smoothness.is_finite()) {
+        return Err(format!(
+            "--smoothness {}: must be non-negative and finite",
+            args.smoothness
+        ));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| format!("thread pool: {e}"))?;
+    let fitted = pool.install(|| fit_scene(&scene, &rest, &target, &name, &args.fit, options))?;
+    let dir = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("out").join(format!("fit-{}", scene.name)));
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let toml = fitted_toml(&args, &scene, &fitted, &dir)?;
+    std::fs::write(dir.join("fitted.toml"), toml)
+        .map_err(|e| format!("{}: {e}", dir.join("fitted.toml").display()))?;
+    hinge_core::meshio::write_mesh(dir.join("fitted.obj"), &fitted.x, rest.triangles())
+        .map_err(|e| e.to_string())?;
+    eprintln!("fit: wrote {}", dir.join("fitted.toml").display());
+    println!("{}", fitted.json());
+    Ok(())
+}
