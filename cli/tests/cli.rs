@@ -1960,3 +1960,283 @@ fn the_corotational_membrane_runs_in_scenes() {
     assert!(clearance > -1e-3 && clearance < 0.02, "{clearance}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `hinge fit`: Young's modulus of beam3 recovered from its own static shape (from a 3× too stiff and a 2×
+/// too soft start, ≤ 25 equilibria each), the fitted scene reproducing the target, a custom ψ's scalar
+/// parameter and the rest angles of a creased sheet, and every bad input a one-line error.
+#[test]
+fn fit_recovers_keys_from_static_shapes() {
+    let dir = tmp("fit");
+    let d = |p: &str| dir.join(p).display().to_string();
+    let scene_text = String::from_utf8(hinge(&["scenes", "show", "beam3"]).stdout).unwrap();
+    assert!(scene_text.contains("young = 2e+09"));
+    let out = hinge(&["run", "beam3", "--static", "--out", &d("target")]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let target = d("target/static.obj");
+    for (name, young) in [("stiff", "6e+09"), ("soft", "1e+09")] {
+        let path = d(&format!("beam3_{name}.toml"));
+        std::fs::write(
+            &path,
+            scene_text.replace("young = 2e+09", &format!("young = {young}")),
+        )
+        .unwrap();
+        let fitted = d(&format!("fitted_{name}"));
+        let out = hinge(&[
+            "fit",
+            &path,
+            "--target",
+            &target,
+            "--fit",
+            "material.young",
+            "--out",
+            &fitted,
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // Only the JSON on stdout.
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let y = json["fitted"]["material.young"].as_f64().unwrap();
+        let equilibria = json["equilibria"].as_u64().unwrap();
+        println!(
+            "beam3 from {young}: Y = {y:.6e}, {equilibria} equilibria, {} iterations",
+            json["iterations"]
+        );
+        assert!((y / 2e9 - 1.0).abs() < 1e-3, "{y}");
+        assert!(equilibria <= 25, "{equilibria}");
+        assert!(json["loss"].as_f64().unwrap() < 1e-8);
+        // The fitted scene solves to the target.
+        let toml = std::fs::read_to_string(format!("{fitted}/fitted.toml")).unwrap();
+        let written: f64 = toml
+            .lines()
+            .find_map(|l| l.strip_prefix("young = "))
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or_else(|| panic!("{toml}"));
+        assert_eq!(written, y);
+        let again = d(&format!("again_{name}"));
+        let out = hinge(&[
+            "run",
+            &format!("{fitted}/fitted.toml"),
+            "--static",
+            "--out",
+            &again,
+        ]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let read = |p: &str| {
+            std::fs::read_to_string(p)
+                .unwrap()
+                .lines()
+                .filter(|l| l.starts_with("v "))
+                .flat_map(|l| {
+                    l.split_whitespace()
+                        .skip(1)
+                        .map(|v| v.parse::<f64>().unwrap())
+                        .collect::<Vec<_>>()
+                })
+                .collect::<Vec<f64>>()
+        };
+        let (a, b) = (read(&target), read(&format!("{again}/static.obj")));
+        let worst = a
+            .iter()
+            .zip(&b)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+        assert!(worst < 1e-6, "{worst}");
+    }
+    // A custom ψ with a scalar parameter.
+    let custom = scene_text
+        .replace(
+            "energy = \"tan-bending\"",
+            "energy = \"custom\"\npsi = \"c * a * (theta - theta_bar).powi(2)\"",
+        )
+        .replace("[pins]", "[bending.params]\nc = 0.02\n\n[pins]");
+    let custom_path = d("custom.toml");
+    std::fs::write(&custom_path, &custom).unwrap();
+    let out = hinge(&[
+        "run",
+        &custom_path,
+        "--static",
+        "--out",
+        &d("custom_target"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let wrong = d("custom_wrong.toml");
+    std::fs::write(&wrong, custom.replace("c = 0.02", "c = 0.05")).unwrap();
+    let out = hinge(&[
+        "fit",
+        &wrong,
+        "--target",
+        &d("custom_target/static.obj"),
+        "--fit",
+        "bending.params.c",
+        "--out",
+        &d("custom_fit"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let c = json["fitted"]["bending.params.c"].as_f64().unwrap();
+    assert!((c / 0.02 - 1.0).abs() < 1e-3, "{c}");
+    // Rest angles (one per hinge): a few iterations lower the loss and write the fitted field beside the
+    // scene.
+    let out = hinge(&[
+        "fit",
+        &d("beam3_stiff.toml"),
+        "--target",
+        &target,
+        "--fit",
+        "bending.rest_angles",
+        "--out",
+        &d("angles_fit"),
+        "--max-iterations",
+        "3",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let n_angles = json["fitted"]["bending.rest_angles"]
+        .as_array()
+        .unwrap()
+        .len();
+    assert!(n_angles > 100, "{n_angles}");
+    let toml = std::fs::read_to_string(d("angles_fit/fitted.toml")).unwrap();
+    assert!(toml.contains("fitted_rest_angles.txt"), "{toml}");
+    let written = std::fs::read_to_string(d("angles_fit/fitted_rest_angles.txt")).unwrap();
+    assert_eq!(written.lines().count(), n_angles);
+    // Bad input: one line on stderr, exit code 1.
+    let other = d("other.obj");
+    std::fs::write(&other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let stiff = d("beam3_stiff.toml");
+    let density0 = d("density0.toml");
+    std::fs::write(
+        &density0,
+        scene_text.replace("density = 0.6", "density = 0.0"),
+    )
+    .unwrap();
+    for (args, expect) in [
+        (
+            vec!["fit", &stiff, "--target", &other, "--fit", "material.young"],
+            "3 vertices",
+        ),
+        (
+            vec!["fit", &stiff, "--target", &target, "--fit", "material.nope"],
+            "unknown key `material.nope`",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.young,material.young",
+            ],
+            "given twice",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.young,material.density",
+            ],
+            "not separately identifiable",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.young,material.thickness",
+            ],
+            "not separately identifiable",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "bending.params.k",
+            ],
+            "custom ψ",
+        ),
+        (
+            vec![
+                "fit",
+                &custom_path,
+                "--target",
+                &target,
+                "--fit",
+                "bending.params.zz",
+            ],
+            "has no `zz`",
+        ),
+        (
+            vec![
+                "fit",
+                &density0,
+                "--target",
+                &target,
+                "--fit",
+                "material.density",
+            ],
+            "density",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &d("missing.obj"),
+                "--fit",
+                "material.young",
+            ],
+            "missing.obj",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.young",
+                "--smoothness=-1",
+            ],
+            "--smoothness",
+        ),
+    ] {
+        let out = hinge(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(out.stdout.is_empty(), "{args:?}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("hinge:")).collect();
+        assert_eq!(lines.len(), 1, "{args:?}: {err}");
+        assert!(lines[0].contains(expect), "{args:?}: {err}");
+    }
+}
