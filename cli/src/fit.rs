@@ -71,6 +71,8 @@ pub struct Fitted {
     pub equilibria: usize,
     /// The fitted equilibrium.
     pub x: Vec<Vector3<f64>>,
+    /// Why the fit stopped.
+    pub stop: &'static str,
 }
 
 impl Fitted {
@@ -316,6 +318,7 @@ pub fn fit_scene(
         iterations: r.iterations,
         equilibria: r.equilibria,
         x: r.x,
+        stop: r.stop,
     })
 }
 

@@ -511,6 +511,9 @@ fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<system::PyStepper>()?;
     m.add_function(wrap_pyfunction!(system::solve_static, m)?)?;
     m.add_function(wrap_pyfunction!(system::run_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(system::adjoint_gradient, m)?)?;
+    m.add_function(wrap_pyfunction!(system::fit, m)?)?;
+    m.add_function(wrap_pyfunction!(system::fit_scene, m)?)?;
     m.add_function(wrap_pyfunction!(hinges, m)?)?;
     m.add_function(wrap_pyfunction!(energies, m)?)?;
     Ok(())

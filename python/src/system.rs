@@ -16,6 +16,7 @@ use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::pins::Pins;
 use hinge_energies::spring::MassSpring;
+use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
@@ -154,6 +155,8 @@ pub struct PySystem {
     pins: Vec<usize>,
     /// The built system, its CSR layout and its evaluation buffers (rebuilt after a change).
     built: Option<(System, CsrLayout, SystemEvaluation)>,
+    /// Parameters set with `set_parameter` (or by `fit`), applied again whenever the system is rebuilt.
+    overrides: Vec<(String, Vec<f64>)>,
 }
 
 impl PySystem {
@@ -168,7 +171,28 @@ impl PySystem {
             .iter()
             .map(|t| build_term(&self.rest, t))
             .collect::<Result<Vec<_>, _>>()?;
-        System::new(self.rest.n_vertices(), terms).map_err(|e| e.to_string())
+        let mut system = System::new(self.rest.n_vertices(), terms).map_err(|e| e.to_string())?;
+        for (name, values) in &self.overrides {
+            system
+                .set_parameter(name, values)
+                .map_err(|e| e.to_string())?;
+        }
+        Ok(system)
+    }
+
+    /// The built system (built now if needed).
+    fn system(&mut self, py: Python<'_>) -> PyResult<&mut System> {
+        self.ensure(py)?;
+        match &mut self.built {
+            Some((s, _, _)) => Ok(s),
+            None => Err(value_error("system not built")),
+        }
+    }
+
+    /// Records `name = values` (already accepted by the built system) for rebuilds.
+    fn record(&mut self, name: &str, values: Vec<f64>) {
+        self.overrides.retain(|(n, _)| n != name);
+        self.overrides.push((name.to_string(), values));
     }
 
     fn ensure(&mut self, py: Python<'_>) -> PyResult<()> {
@@ -241,6 +265,7 @@ impl PySystem {
             terms: Vec::new(),
             pins: Vec::new(),
             built: None,
+            overrides: Vec::new(),
         })
     }
 
@@ -379,6 +404,31 @@ impl PySystem {
                 Term::Plane { .. } => "contact-plane".into(),
             })
             .collect()
+    }
+
+    /// The differentiable parameters of the system's terms as `[(name, length)]`, named `TERM.NAME`
+    /// (`bending.k`, `bending.theta_bar`, `membrane.young`, `gravity.g`, …).
+    fn parameters(&mut self, py: Python<'_>) -> PyResult<Vec<(String, usize)>> {
+        Ok(self
+            .system(py)?
+            .parameters()
+            .into_iter()
+            .map(|p| (p.name, p.len))
+            .collect())
+    }
+
+    /// The values of parameter `name` (see `parameters()`).
+    fn parameter(&mut self, py: Python<'_>, name: &str) -> PyResult<Vec<f64>> {
+        self.system(py)?.parameter(name).map_err(value_error)
+    }
+
+    /// Sets parameter `name` (as many values as it has); kept when the system is rebuilt.
+    fn set_parameter(&mut self, py: Python<'_>, name: &str, values: Vec<f64>) -> PyResult<()> {
+        self.system(py)?
+            .set_parameter(name, &values)
+            .map_err(value_error)?;
+        self.record(name, values);
+        Ok(())
     }
 
     /// `(indptr, indices)` of the system Hessian's full CSR structure.
@@ -657,4 +707,206 @@ pub fn run_scene<'py>(
         arr,
         d,
     ))
+}
+
+/// `adjoint_gradient(system, X, dloss_dx, parameters)`: `dL/dp = −λᵀ ∂g/∂p` at an equilibrium `X` of the
+/// system (pins eliminated) for a loss whose gradient with respect to the positions is `dloss_dx` (shape
+/// (n, 3)), for every named parameter; `H λ = ∂L/∂x` with the exact Hessian at `X`. Returns a dict name →
+/// array. An `X` that is not a strict minimum (indefinite Hessian) raises `ValueError`.
+#[pyfunction]
+pub fn adjoint_gradient<'py>(
+    py: Python<'py>,
+    system: &mut PySystem,
+    x: PyReadonlyArray2<'py, f64>,
+    dloss_dx: PyReadonlyArray2<'py, f64>,
+    parameters: Vec<String>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let pos = system.positions(&x)?;
+    let dl: Vec<f64> = system
+        .positions(&dloss_dx)?
+        .iter()
+        .flat_map(|p| [p.x, p.y, p.z])
+        .collect();
+    let pins = system.pins()?;
+    let sys = system.system(py)?;
+    let r = py.detach(|| -> Result<Vec<(String, Vec<f64>)>, String> {
+        let mut adjoint = Adjoint::new(sys, &pins).map_err(|e| e.to_string())?;
+        adjoint.factor(sys, &pos).map_err(|e| e.to_string())?;
+        adjoint.solve(&dl).map_err(|e| e.to_string())?;
+        parameters
+            .iter()
+            .map(|name| {
+                adjoint
+                    .parameter_gradient(sys, &pos, name)
+                    .map(|g| (name.clone(), g))
+                    .map_err(|e| e.to_string())
+            })
+            .collect()
+    });
+    let d = PyDict::new(py);
+    for (name, g) in r.map_err(value_error)? {
+        d.set_item(name, g.into_pyarray(py))?;
+    }
+    Ok(d)
+}
+
+/// The dict `{"fitted": …, "loss", "iterations", "equilibria", "stop"}` of a fit.
+fn fit_info<'py>(
+    py: Python<'py>,
+    names: &[String],
+    values: &[Vec<f64>],
+    r: (f64, usize, usize, &str),
+) -> PyResult<Bound<'py, PyDict>> {
+    let fitted = PyDict::new(py);
+    for (n, v) in names.iter().zip(values) {
+        if v.len() == 1 {
+            fitted.set_item(n, v[0])?;
+        } else {
+            fitted.set_item(n, v.clone().into_pyarray(py))?;
+        }
+    }
+    let d = PyDict::new(py);
+    d.set_item("fitted", fitted)?;
+    d.set_item("loss", r.0)?;
+    d.set_item("iterations", r.1)?;
+    d.set_item("equilibria", r.2)?;
+    d.set_item("stop", r.3)?;
+    Ok(d)
+}
+
+/// `fit(system, X0, target, parameters, max_iterations=50, smoothness=0.0)`: the named system parameters
+/// (`TERM.NAME`) that make the equilibrium match `target` (shape (n, 3); loss: the sum of squared vertex
+/// distances), by L-BFGS with adjoint gradients; a parameter whose values are all positive is fitted on a log
+/// scale. Returns `(X, info)` with `info["fitted"]` the values; the system keeps them.
+#[pyfunction]
+#[pyo3(signature = (system, x0, target, parameters, max_iterations=50, gradient_tolerance=1e-9))]
+pub fn fit<'py>(
+    py: Python<'py>,
+    system: &mut PySystem,
+    x0: PyReadonlyArray2<'py, f64>,
+    target: PyReadonlyArray2<'py, f64>,
+    parameters: Vec<String>,
+    max_iterations: usize,
+    gradient_tolerance: f64,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+    let mut x = system.positions(&x0)?;
+    let target = system.positions(&target)?;
+    let params = NewtonParams {
+        max_iterations: 500,
+        ..newton_params(500, gradient_tolerance)?
+    };
+    let pins = system.pins()?;
+    let sys = system.system(py)?;
+    let mut variables = Vec::new();
+    for (i, name) in parameters.iter().enumerate() {
+        if parameters[..i].contains(name) {
+            return Err(value_error(format!("parameter `{name}` given twice")));
+        }
+        let start = sys.parameter(name).map_err(value_error)?;
+        let positive = start.iter().all(|v| *v > 0.0);
+        variables.push(FitVariable {
+            name: name.clone(),
+            links: vec![if positive {
+                Link::Power {
+                    parameter: name.clone(),
+                    exponent: 1.0,
+                }
+            } else {
+                Link::Value {
+                    parameter: name.clone(),
+                }
+            }],
+            start,
+            positive,
+        });
+    }
+    let options = FitOptions {
+        max_iterations,
+        ..FitOptions::default()
+    };
+    let r = py.detach(|| -> Result<FitResult, String> {
+        let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
+            .map_err(|e| e.to_string())?;
+        let loss = TargetLoss::all(target);
+        let mut fit =
+            Fit::new(sys, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
+        fit.run(sys, &mut x, &mut |x, g| loss.evaluate(x, g))
+            .map_err(|e| e.to_string())
+    });
+    let r = r.map_err(value_error)?;
+    for (name, v) in parameters.iter().zip(&r.values) {
+        system.record(name, v.clone());
+    }
+    let info = fit_info(
+        py,
+        &parameters,
+        &r.values,
+        (r.loss, r.iterations, r.equilibria, r.stop),
+    )?;
+    Ok((to_array(py, &r.x)?, info))
+}
+
+/// `fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0)`: `hinge fit` from Python — the scene
+/// keys (`material.young`, `material.thickness`, `material.density`, `bending.params.NAME`,
+/// `bending.rest_angles`) that make the scene's static equilibrium match `target` (a mesh file path, or the
+/// positions as an (n, 3) array). Returns `(X, info)` like `fit`.
+#[pyfunction]
+#[pyo3(signature = (scene, target, keys, max_iterations=50, smoothness=0.0))]
+pub fn fit_scene<'py>(
+    py: Python<'py>,
+    scene: &str,
+    target: &Bound<'py, PyAny>,
+    keys: Vec<String>,
+    max_iterations: usize,
+    smoothness: f64,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+    if !(smoothness >= 0.0 && smoothness.is_finite()) {
+        return Err(value_error(format!(
+            "smoothness must be non-negative and finite, got {smoothness}"
+        )));
+    }
+    let (sc, base) = hinge_cli::scene::load(scene).map_err(value_error)?;
+    let rest = sc.rest_mesh(base.as_deref()).map_err(value_error)?;
+    let (target_mesh, name) = if let Ok(path) = target.extract::<String>() {
+        (
+            hinge_cli::files::read(std::path::Path::new(&path)).map_err(value_error)?,
+            path,
+        )
+    } else {
+        let arr: PyReadonlyArray2<'py, f64> = target.extract().map_err(|_| {
+            value_error("target must be a mesh file path or an (n, 3) array of positions")
+        })?;
+        let s = arr.shape();
+        if s.len() != 2 || s[1] != 3 || s[0] != rest.n_vertices() {
+            return Err(value_error(format!(
+                "target must have shape ({}, 3), got {s:?}",
+                rest.n_vertices()
+            )));
+        }
+        let a = arr.as_array();
+        let x: Vec<Vector3<f64>> = (0..s[0])
+            .map(|i| Vector3::new(a[[i, 0]], a[[i, 1]], a[[i, 2]]))
+            .collect();
+        (
+            rest.with_positions(x).map_err(value_error)?,
+            "target".to_string(),
+        )
+    };
+    let options = FitOptions {
+        max_iterations,
+        smoothness,
+        ..FitOptions::default()
+    };
+    let r = py
+        .detach(|| hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options))
+        .map_err(value_error)?;
+    let names: Vec<String> = r.values.iter().map(|(k, _)| k.clone()).collect();
+    let values: Vec<Vec<f64>> = r.values.iter().map(|(_, v)| v.clone()).collect();
+    let info = fit_info(
+        py,
+        &names,
+        &values,
+        (r.loss, r.iterations, r.equilibria, r.stop),
+    )?;
+    Ok((to_array(py, &r.x)?, info))
 }

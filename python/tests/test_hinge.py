@@ -344,3 +344,117 @@ def test_run_scene_gives_frames_like_the_cli(tmp_path):
         hinge.run_scene("nope")
     with pytest.raises(ValueError, match="frames"):
         hinge.run_scene("drape", frames=0)
+
+
+def cantilever(k=1e-2, young=1e6):
+    V, F = sheet(8, 3, 23, jitter=0.05)
+    V = V * [0.3, 0.3, 1.0]
+    s = hinge.System(V, F).add_bending(psi="k * a * (theta - theta_bar).powi(2)", k=k)
+    s.add_membrane(young, 0.3, 1e-3).add_gravity(0.5)
+    clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
+    s.pin(clamp)
+    return V, F, s
+
+
+def test_parameters_are_listed_read_and_set():
+    V, F, s = cantilever()
+    names = dict(s.parameters())
+    bending = [n for n in names if n.endswith(".k")][0]
+    assert names[bending] == 1 and "membrane.young" in names and names["gravity.g"] == 3
+    rest_angles = bending[: -len(".k")] + ".theta_bar"
+    assert names[rest_angles] > 10
+    assert s.parameter(bending)[0] == pytest.approx(1e-2)
+    s.set_parameter(bending, 2e-2)
+    assert s.parameter(bending)[0] == 2e-2
+    with pytest.raises(ValueError, match="unknown"):
+        s.parameter("membrane.nope")
+    with pytest.raises(ValueError, match="young"):
+        s.set_parameter("membrane.young", -1.0)
+    with pytest.raises(ValueError, match="values"):
+        s.set_parameter("gravity.g", [1.0, 2.0])
+
+
+def test_adjoint_gradient_matches_finite_differences_of_resolved_equilibria():
+    V, F, s = cantilever()
+    bending = [n for n, _ in s.parameters() if n.endswith(".k")][0]
+    X, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
+    T = X + np.stack([0 * V[:, 0], 0.01 * V[:, 0], -0.02 * V[:, 0] ** 2], axis=1)
+    loss = lambda Y: float(((Y - T) ** 2).sum())
+    d = hinge.adjoint_gradient(s, X, 2 * (X - T), [bending, "membrane.young", "gravity.g"])
+    for name, i, h in [(bending, 0, 1e-5), ("membrane.young", 0, 1e3), ("gravity.g", 2, 1e-2)]:
+        base = s.parameter(name)
+        vals = []
+        for t in (h, -h, 2 * h, -2 * h):
+            p = base.copy()
+            p[i] += t
+            s.set_parameter(name, p)
+            Y, _ = hinge.solve_static(s, X, gradient_tolerance=1e-11)
+            vals.append(loss(Y))
+        s.set_parameter(name, base)
+        d1, d2 = (vals[0] - vals[1]) / (2 * h), (vals[2] - vals[3]) / (4 * h)
+        fd = (4 * d1 - d2) / 3
+        assert abs(fd - d[name][i]) <= 1e-5 * abs(fd), (name, fd, d[name][i])
+
+
+def test_fit_recovers_the_bending_stiffness():
+    V, F, s = cantilever(k=1e-2)
+    bending = [n for n, _ in s.parameters() if n.endswith(".k")][0]
+    T, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
+    s.set_parameter(bending, 3e-2)
+    X, info = hinge.fit(s, V, T, [bending])
+    assert info["fitted"][bending] == pytest.approx(1e-2, rel=1e-4)
+    assert s.parameter(bending)[0] == info["fitted"][bending]
+    assert info["equilibria"] <= 25 and np.abs(X - T).max() < 1e-6
+    with pytest.raises(ValueError, match="twice"):
+        hinge.fit(s, V, T, [bending, bending])
+    with pytest.raises(ValueError, match="unknown"):
+        hinge.fit(s, V, T, ["nothing.here"])
+
+
+STRIP = """
+name = "strip"
+frames = 1
+dt = 0.01
+
+[mesh]
+cells = [24, 2]
+size = [0.2, 0.02]
+
+[material]
+young = YOUNG
+poisson = 0.3
+thickness = 5e-4
+density = 0.5
+
+[bending]
+energy = "tan-bending"
+calibration = "plate"
+
+[pins]
+clamp_columns = 2
+
+[solver]
+gradient_tolerance = 1e-9
+"""
+
+
+def test_fit_scene_recovers_young_s_modulus(tmp_path):
+    good, wrong = tmp_path / "good.toml", tmp_path / "wrong.toml"
+    good.write_text(STRIP.replace("YOUNG", "2e8"))
+    wrong.write_text(STRIP.replace("YOUNG", "6e8"))
+    V, F, _, _ = hinge.run_scene(str(good), frames=1)
+    # No iterations: the equilibrium at the scene's own values, the target.
+    T, info0 = hinge.fit_scene(str(good), V, ["material.young"], max_iterations=0)
+    assert info0["iterations"] == 0 and info0["fitted"]["material.young"] == 2e8
+    assert T[:, 2].min() < -1e-3  # it sagged
+    X, info = hinge.fit_scene(str(wrong), T, ["material.young"])
+    assert info["fitted"]["material.young"] == pytest.approx(2e8, rel=1e-4)
+    assert info["equilibria"] <= 25 and np.abs(X - T).max() < 1e-6
+    with pytest.raises(ValueError, match="unknown key"):
+        hinge.fit_scene(str(wrong), T, ["material.nope"])
+    with pytest.raises(ValueError, match="not separately identifiable"):
+        hinge.fit_scene(str(wrong), T, ["material.young", "material.density"])
+    with pytest.raises(ValueError, match="shape"):
+        hinge.fit_scene(str(wrong), T[:-1], ["material.young"])
+    with pytest.raises(ValueError, match="mesh file path"):
+        hinge.fit_scene(str(wrong), 3, ["material.young"])

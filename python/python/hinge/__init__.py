@@ -20,7 +20,8 @@ import scipy.sparse as _sp
 
 from . import _hinge
 
-__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies"]
+__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
+           "adjoint_gradient", "fit", "fit_scene"]
 
 
 def _vertices(V):
@@ -227,6 +228,23 @@ class System:
                              f"{X.dtype} {X.shape}")
         return _np.ascontiguousarray(X, dtype=_np.float64)
 
+    def parameters(self):
+        """The differentiable parameters as ``[(name, length)]``, named ``TERM.NAME`` (``"bending.k"``,
+        ``"bending.theta_bar"`` (rest angles), ``"membrane.young"``, ``"gravity.g"`` ...)."""
+        return self._s.parameters()
+
+    def parameter(self, name):
+        """The values of parameter ``name`` as an array."""
+        return _np.asarray(self._s.parameter(str(name)))
+
+    def set_parameter(self, name, values):
+        """Sets parameter ``name`` (a number, or as many values as it has)."""
+        v = _np.atleast_1d(_np.asarray(values, dtype=_np.float64))
+        if v.ndim != 1:
+            raise ValueError(f"parameter {name!r}: values must be a number or a 1-D array")
+        self._s.set_parameter(str(name), [float(x) for x in v])
+        return self
+
     def evaluate(self, X, hessian=True):
         """``(E, g, H)`` of the whole system (``(E, g)`` with ``hessian=False``)."""
         E, g, data = self._s.evaluate_raw(self._x(X), bool(hessian))
@@ -242,6 +260,40 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8):
     system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``final_gradient_norm``, ``gradient_norms``)."""
     return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance))
+
+
+def adjoint_gradient(system, X, dloss_dx, parameters):
+    """``dL/dp`` at an equilibrium ``X`` of ``system`` (pins eliminated) for a loss ``L(X)`` whose gradient with
+    respect to the positions is ``dloss_dx`` (shape (n, 3)): ``-lambda^T dg/dp`` with ``H lambda = dL/dx``, ``H``
+    the exact Hessian at ``X``. Returns a dict name -> array, one entry per parameter value. Raises
+    ``ValueError`` when ``X`` is not a strict minimum (indefinite Hessian) or a name is unknown."""
+    if isinstance(parameters, str):
+        parameters = [parameters]
+    return _hinge.adjoint_gradient(system._s, system._x(X), system._x(dloss_dx), [str(p) for p in parameters])
+
+
+def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9):
+    """Fits system parameters (``TERM.NAME``, see ``System.parameters``) so that the static equilibrium
+    matches ``target`` (shape (n, 3); loss: summed squared vertex distances), by L-BFGS with adjoint gradients;
+    parameters whose values are all positive stay positive (fitted on a log scale). Returns ``(X, info)``:
+    the fitted equilibrium and a dict with ``fitted`` (name -> value or array), ``loss``, ``iterations``,
+    ``equilibria``, ``stop``. The system keeps the fitted values."""
+    if isinstance(parameters, str):
+        parameters = [parameters]
+    return _hinge.fit(system._s, system._x(X0), system._x(target), [str(p) for p in parameters],
+                      int(max_iterations), float(gradient_tolerance))
+
+
+def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
+    """``hinge fit`` from Python: the scene keys (``"material.young"``, ``"material.thickness"``,
+    ``"material.density"``, ``"bending.params.NAME"``, ``"bending.rest_angles"``) that make the scene's static
+    equilibrium match ``target`` (a mesh file path, or an (n, 3) array). Returns ``(X, info)`` like ``fit``;
+    keys that cannot be told apart from the target raise ``ValueError``."""
+    if isinstance(keys, str):
+        keys = [keys]
+    if not isinstance(target, str):
+        target = _np.ascontiguousarray(_np.asarray(target, dtype=_np.float64))
+    return _hinge.fit_scene(str(scene), target, [str(k) for k in keys], int(max_iterations), float(smoothness))
 
 
 class ImplicitEuler:
