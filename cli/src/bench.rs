@@ -326,6 +326,84 @@ fn solver_rows(n: usize, runs: usize) -> Result<Vec<Row>, String> {
     Ok(rows)
 }
 
+/// Adjoint rows: on beam3's static equilibrium at each resolution, one Newton iteration (`minimize` limited
+/// to one iteration from a slightly perturbed equilibrium: assembly, factorization, solve, line search) and
+/// one adjoint gradient (exact-Hessian assembly, factorization, solve, and `dL/dk` for the bending stiffness);
+/// the symbolic analyses of both are done once beforehand. Medians; the summary prints their ratio.
+fn adjoint_rows(runs: usize) -> Result<Vec<Row>, String> {
+    use hinge_solver::adjoint::Adjoint;
+    use hinge_solver::newton::{Newton, NewtonParams};
+    let mut rows = Vec::new();
+    for level in 1..=3 {
+        let (mut scene, _) = hinge_cli::scene::load("beam3")?;
+        scene.set_resolution(level)?;
+        let rest = scene.rest_mesh(None)?;
+        let b = hinge_cli::run::build(&scene, &rest, false)?;
+        let mut system = b.system;
+        let nv = rest.n_vertices();
+        let nh = hinge_core::topology::hinges(&rest)
+            .map_err(|e| e.to_string())?
+            .len();
+        let params = NewtonParams {
+            max_iterations: 2000,
+            ..b.params.clone()
+        };
+        let mut newton =
+            Newton::new(&system, &b.pins, b.solver, params).map_err(|e| e.to_string())?;
+        let mut x = rest.positions().to_vec();
+        newton
+            .minimize(&mut system, &mut x, None)
+            .map_err(|e| format!("beam3 statics: {e}"))?;
+        // One iteration from a perturbed equilibrium (the free end lifted by 1% of its deflection).
+        let perturbed: Vec<_> = x
+            .iter()
+            .zip(rest.positions())
+            .map(|(p, r)| p + (r - p) * 0.01)
+            .collect();
+        newton.params.max_iterations = 1;
+        newton.params.gradient_tolerance = 0.0;
+        newton.params.step_tolerance = 0.0;
+        newton.params.relative_gradient_tolerance = 0.0;
+        newton.params.relative_step_tolerance = 0.0;
+        let mut adjoint = Adjoint::new(&system, &b.pins).map_err(|e| e.to_string())?;
+        let target: Vec<f64> = x.iter().flat_map(|p| [p.x, p.y, p.z - 1e-3]).collect();
+        let dl: Vec<f64> = x
+            .iter()
+            .flat_map(|p| [p.x, p.y, p.z])
+            .zip(&target)
+            .map(|(a, t)| 2.0 * (a - t))
+            .collect();
+        let (mut tn, mut ta) = (Vec::new(), Vec::new());
+        for _ in 0..runs {
+            let mut y = perturbed.clone();
+            let t = Instant::now();
+            // One iteration; "not converged" after it is expected.
+            let _ = newton.minimize(&mut system, &mut y, None);
+            tn.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            adjoint.factor(&mut system, &x).map_err(|e| e.to_string())?;
+            adjoint.solve(&dl).map_err(|e| e.to_string())?;
+            let g = adjoint
+                .parameter_gradient(&mut system, &x, "bending.k")
+                .map_err(|e| e.to_string())?;
+            ta.push(t.elapsed().as_secs_f64() * 1e3);
+            std::hint::black_box(g);
+        }
+        let row = |method: &str, t: Vec<f64>| Row {
+            method: method.into(),
+            mesh: "beam3",
+            threads: rayon::current_num_threads(),
+            n_vertices: nv,
+            n_hinges: nh,
+            median_ms: median(t),
+            extra: Vec::new(),
+        };
+        rows.push(row("newton_iteration", tn));
+        rows.push(row("adjoint", ta));
+    }
+    Ok(rows)
+}
+
 /// One timed row of the benchmark.
 #[derive(Clone, Copy)]
 enum Kind {
@@ -769,6 +847,9 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     if wanted("psi") {
         rows.extend(psi_rows(runs));
     }
+    if wanted("adjoint") {
+        rows.extend(adjoint_rows(runs)?);
+    }
     if wanted("solve") {
         for &n in &args.solver_sizes {
             rows.extend(solver_rows(n, runs.min(7))?);
@@ -797,6 +878,18 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .find(|r| r.mesh == mesh && r.n_vertices == nv && r.method == m && r.threads == t)
             .map(|r| r.median_ms)
     };
+    for r in rows.iter().filter(|r| r.method == "adjoint") {
+        if let Some(newton) = rows
+            .iter()
+            .find(|q| q.method == "newton_iteration" && q.n_vertices == r.n_vertices)
+        {
+            println!(
+                "{} vertices, beam3: one adjoint gradient / one Newton iteration {:.2}x",
+                r.n_vertices,
+                r.median_ms / newton.median_ms
+            );
+        }
+    }
     for &n in &args.sizes {
         let nv = (n + 1) * (n + 1);
         let get = |m: &str, t: usize| find("grid", nv, m, t);
