@@ -493,8 +493,11 @@ pub struct Fit<'a> {
     /// Every linked parameter and its value when the fit was made.
     linked: Vec<(String, Vec<f64>)>,
     /// Called after every accepted L-BFGS iteration (progress reports).
-    observer: Option<Box<dyn FnMut(&FitProgress) + 'a>>,
+    observer: Option<Observer<'a>>,
 }
+
+/// A [`Fit`]'s progress callback.
+pub type Observer<'a> = Box<dyn FnMut(&FitProgress) + 'a>;
 
 /// What a [`Fit`]'s observer sees after every accepted iteration.
 #[derive(Debug, Clone, PartialEq)]
