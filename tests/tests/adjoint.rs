@@ -11,7 +11,8 @@ use hinge_core::energy::{Energy, HingeTerm, ParameterOutput, System};
 use hinge_core::grid::{Diagonal, SplitMix64, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
-use hinge_core::psi::{HingePsi, HingeQuantities};
+use hinge_core::anisotropy::Anisotropic;
+use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities};
 use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
 use hinge_core::{EvalError, TriMesh};
 use hinge_energies::bending::plate_consistent_stiffness;
@@ -266,6 +267,18 @@ fn energies(rest: &TriMesh) -> Vec<Box<dyn Energy>> {
             BendingModel::new(rest, rt).unwrap(),
             Method::Refactored,
         )),
+        Box::new(HingeTerm::new(
+            "aniso",
+            BendingModel::new(
+                rest,
+                Anisotropic::new(
+                    DiscreteShells { k: 0.4 },
+                    (0..n_hinges).map(|i| 1.0 + 0.1 * (i % 5) as f64).collect(),
+                ),
+            )
+            .unwrap(),
+            Method::Refactored,
+        )),
         Box::new(StvkMembrane::new(rest, 50.0, 0.3, 0.01).unwrap()),
         Box::new(CorotationalMembrane::new(rest, 0.7).unwrap()),
         Box::new(MassSpring::new(rest, 3.0).unwrap()),
@@ -307,6 +320,8 @@ fn every_parameter_derivative_matches_central_differences() {
         "runtime.k",
         "runtime.c",
         "runtime.theta_bar",
+        "aniso.k",
+        "aniso.theta_bar",
         "membrane.young",
         "membrane.thickness",
         "corotational-membrane.stiffness",
