@@ -2126,6 +2126,27 @@ fn fit_recovers_keys_from_static_shapes() {
     let other = d("other.obj");
     std::fs::write(&other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
     let stiff = d("beam3_stiff.toml");
+    // The target with two faces swapped: the same vertices, another face order.
+    let swapped = d("swapped.obj");
+    let mut lines: Vec<String> = std::fs::read_to_string(&target)
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    let faces: Vec<usize> = (0..lines.len())
+        .filter(|&i| lines[i].starts_with("f "))
+        .collect();
+    lines.swap(faces[0], faces[1]);
+    std::fs::write(&swapped, lines.join("\n") + "\n").unwrap();
+    // No pins: the strip falls, no equilibrium.
+    let free = d("free.toml");
+    std::fs::write(
+        &free,
+        scene_text
+            .replace("[pins]", "")
+            .replace("clamp_columns = 2", ""),
+    )
+    .unwrap();
     let density0 = d("density0.toml");
     std::fs::write(
         &density0,
@@ -2206,6 +2227,21 @@ fn fit_recovers_keys_from_static_shapes() {
                 "material.density",
             ],
             "density",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &swapped,
+                "--fit",
+                "material.young",
+            ],
+            "face 1 differs",
+        ),
+        (
+            vec!["fit", &free, "--target", &target, "--fit", "material.young"],
+            "equilibrium",
         ),
         (
             vec![

@@ -6,12 +6,12 @@
 //! fits that recover known parameters from targets the solver made.
 
 use hinge_core::HingeEnergy;
+use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, ParameterOutput, System};
 use hinge_core::grid::{Diagonal, SplitMix64, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
-use hinge_core::anisotropy::Anisotropic;
 use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities};
 use hinge_core::shapes::{irregular_sheet, random_permutation, renumber};
 use hinge_core::{EvalError, TriMesh};
