@@ -15,7 +15,7 @@ use std::f64::consts::PI;
 const N_HINGES: usize = 10_000;
 
 /// Bounds in ulps (units of 2⁻⁵³, normwise relative) of closed form vs autodiff. Measured on these 10 000
-/// hinges (`cargo test -p hinge-tests --release --test hinge_kernels -- --nocapture`): gradient median 2.5,
+/// hinges (`cargo test -p hinge-tests --release --test integration hinge_kernels:: -- --nocapture`): gradient median 2.5,
 /// p99 6.1, max 9.0; Hessian median 5.2, p99 10.8, max 22.9. The bounds leave under 2× head room.
 const GRADIENT_ULPS: f64 = 16.0;
 const HESSIAN_ULPS: f64 = 40.0;
