@@ -377,6 +377,10 @@ impl<P: HingePsi> HingePsi for Anisotropic<P> {
         self.inner.parameters()
     }
 
+    fn n_parameters(&self) -> usize {
+        self.inner.n_parameters()
+    }
+
     fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
         if !self.inner.parameter_derivatives(q, theta, out) {
             return false;

@@ -163,6 +163,11 @@ pub trait HingePsi: Sync {
         Vec::new()
     }
 
+    /// `parameters().len()` without building the list (what the per-hinge derivative calls ask).
+    fn n_parameters(&self) -> usize {
+        self.parameters().len()
+    }
+
     /// Writes `[∂ψ/∂p, ∂ψ′/∂p]` at hinge `q` and angle `theta` for every parameter of
     /// [`HingePsi::parameters`], then for the rest angle θ̄: `out` has `parameters().len() + 1` entries. For a
     /// per-hinge parameter `p` is hinge `q.hinge`'s own value. Returns false, leaving `out` untouched, when the
@@ -271,8 +276,12 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
             .collect()
     }
 
+    fn n_parameters(&self) -> usize {
+        self.0.n_parameters() + self.1.n_parameters()
+    }
+
     fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
-        let (na, nb) = (self.0.parameters().len(), self.1.parameters().len());
+        let (na, nb) = (self.0.n_parameters(), self.1.n_parameters());
         if out.len() != na + nb + 1 || !self.has_parameter_derivatives() {
             return false;
         }
@@ -289,7 +298,7 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
     }
 
     fn parameter_values(&self, index: usize) -> Option<Vec<f64>> {
-        let na = self.0.parameters().len();
+        let na = self.0.n_parameters();
         if index < na {
             self.0.parameter_values(index)
         } else {
@@ -298,7 +307,7 @@ impl<A: HingePsi, B: HingePsi> HingePsi for (A, B) {
     }
 
     fn set_parameter_values(&mut self, index: usize, values: &[f64]) -> Result<(), PsiError> {
-        let na = self.0.parameters().len();
+        let na = self.0.n_parameters();
         if index < na {
             self.0.set_parameter_values(index, values)
         } else {

@@ -36,7 +36,7 @@
 use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy, Parameter, ParameterOutput, unknown_parameter};
+use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, TriMesh};
@@ -161,45 +161,8 @@ fn degenerate(ti: usize, t: &[usize; 3], what: &str) -> EvalError {
 }
 
 impl Energy for CorotationalMembrane {
-    /// `stiffness` (N/m, ≥ 0): the energy is proportional to it.
-    fn parameters(&self) -> Vec<Parameter> {
-        vec![Parameter {
-            name: "stiffness".into(),
-            len: 1,
-        }]
-    }
-
-    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
-        match name {
-            "stiffness" => Ok(vec![self.stiffness]),
-            _ => Err(unknown_parameter(name, &self.parameters())),
-        }
-    }
-
-    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
-        match name {
-            "stiffness" => {
-                self.stiffness = crate::util::scalar_value(name, values, 0.0)?;
-                Ok(())
-            }
-            _ => Err(unknown_parameter(name, &self.parameters())),
-        }
-    }
-
-    fn add_parameter_derivatives(
-        &mut self,
-        x: &[Vector3<f64>],
-        name: &str,
-        out: &mut ParameterOutput,
-    ) -> Result<(), EvalError> {
-        if name != "stiffness" {
-            return Err(unknown_parameter(name, &self.parameters()));
-        }
-        let mut unit = self.clone();
-        unit.slots.clear();
-        unit.stiffness = 1.0;
-        crate::util::add_proportional_derivatives(&mut unit, x, name, out)
-    }
+    // `stiffness` (≥ 0): the energy is proportional to it.
+    proportional_parameter!("stiffness", stiffness);
 
     fn name(&self) -> &str {
         "corotational-membrane"

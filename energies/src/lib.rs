@@ -42,6 +42,64 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 
+/// The four parameter methods of [`hinge_core::energy::Energy`] for an energy proportional to one
+/// non-negative scalar field (`E(p) = p · E(1)`), exposed under `$name`: derivatives from the energy evaluated
+/// with the field set to 1 ([`util::add_proportional_derivatives`]).
+macro_rules! proportional_parameter {
+    ($name:literal, $field:ident) => {
+        fn parameters(&self) -> Vec<hinge_core::energy::Parameter> {
+            vec![hinge_core::energy::Parameter {
+                name: $name.into(),
+                len: 1,
+            }]
+        }
+
+        fn parameter(&self, name: &str) -> Result<Vec<f64>, hinge_core::EvalError> {
+            if name == $name {
+                Ok(vec![self.$field])
+            } else {
+                Err(hinge_core::energy::unknown_parameter(
+                    name,
+                    &self.parameters(),
+                ))
+            }
+        }
+
+        fn set_parameter(
+            &mut self,
+            name: &str,
+            values: &[f64],
+        ) -> Result<(), hinge_core::EvalError> {
+            if name != $name {
+                return Err(hinge_core::energy::unknown_parameter(
+                    name,
+                    &self.parameters(),
+                ));
+            }
+            self.$field = crate::util::scalar_value(name, values, 0.0)?;
+            Ok(())
+        }
+
+        fn add_parameter_derivatives(
+            &mut self,
+            x: &[hinge_core::nalgebra::Vector3<f64>],
+            name: &str,
+            out: &mut hinge_core::energy::ParameterOutput,
+        ) -> Result<(), hinge_core::EvalError> {
+            if name != $name {
+                return Err(hinge_core::energy::unknown_parameter(
+                    name,
+                    &self.parameters(),
+                ));
+            }
+            let kept = std::mem::replace(&mut self.$field, 1.0);
+            let r = crate::util::add_proportional_derivatives(self, x, name, out);
+            self.$field = kept;
+            r
+        }
+    };
+}
+
 pub mod bending;
 pub mod contact;
 pub mod corotational;
@@ -74,7 +132,8 @@ pub(crate) mod util {
     }
 
     /// Derivatives with respect to a scalar parameter the energy is proportional to (`E(p) = p · E(1)`, so
-    /// `∂E/∂p = E(1)` and `∂∇E/∂p = ∇E(1)`): `unit` is the energy with that parameter set to 1.
+    /// `∂E/∂p = E(1)` and `∂∇E/∂p = ∇E(1)`): `unit` is the energy with that parameter set to 1 (a gradient
+    /// evaluation of it, no Hessian).
     pub fn add_proportional_derivatives(
         unit: &mut dyn Energy,
         x: &[Vector3<f64>],

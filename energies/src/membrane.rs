@@ -127,14 +127,18 @@ impl Energy for StvkMembrane {
         name: &str,
         out: &mut ParameterOutput,
     ) -> Result<(), EvalError> {
-        let mut unit = self.clone();
-        unit.slots.clear();
+        // Evaluated with the parameter set to 1, then put back (set_young recomputes μ and λ by the
+        // constructor's formulas, so they come back bitwise).
+        let (young, thickness) = (self.young, self.thickness);
         match name {
-            "young" => unit.set_young(1.0),
-            "thickness" => unit.thickness = 1.0,
+            "young" => self.set_young(1.0),
+            "thickness" => self.thickness = 1.0,
             _ => return Err(unknown_parameter(name, &self.parameters())),
         }
-        crate::util::add_proportional_derivatives(&mut unit, x, name, out)
+        let r = crate::util::add_proportional_derivatives(self, x, name, out);
+        self.set_young(young);
+        self.thickness = thickness;
+        r
     }
 
     fn name(&self) -> &str {

@@ -15,7 +15,7 @@
 use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy, Parameter, ParameterOutput, unknown_parameter};
+use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, Topology, TriMesh};
@@ -95,45 +95,8 @@ impl MassSpring {
 }
 
 impl Energy for MassSpring {
-    /// `k` (N/m, ≥ 0): the energy is proportional to it.
-    fn parameters(&self) -> Vec<Parameter> {
-        vec![Parameter {
-            name: "k".into(),
-            len: 1,
-        }]
-    }
-
-    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
-        match name {
-            "k" => Ok(vec![self.k]),
-            _ => Err(unknown_parameter(name, &self.parameters())),
-        }
-    }
-
-    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
-        match name {
-            "k" => {
-                self.k = crate::util::scalar_value(name, values, 0.0)?;
-                Ok(())
-            }
-            _ => Err(unknown_parameter(name, &self.parameters())),
-        }
-    }
-
-    fn add_parameter_derivatives(
-        &mut self,
-        x: &[Vector3<f64>],
-        name: &str,
-        out: &mut ParameterOutput,
-    ) -> Result<(), EvalError> {
-        if name != "k" {
-            return Err(unknown_parameter(name, &self.parameters()));
-        }
-        let mut unit = self.clone();
-        unit.slots.clear();
-        unit.k = 1.0;
-        crate::util::add_proportional_derivatives(&mut unit, x, name, out)
-    }
+    // `k` (≥ 0): the energy is proportional to it.
+    proportional_parameter!("k", k);
 
     fn name(&self) -> &str {
         self.name

@@ -270,7 +270,6 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     let [psi, d1, _] = roots;
     let (order, hoisted) = (&compiled.order, &compiled.hoisted);
     let slot: HashMap<Id, usize> = hoisted.iter().enumerate().map(|(k, &id)| (id, k)).collect();
-    let n_fields = names.len();
     let uses_step = compiled.uses_step();
     let used_vars = compiled.used_vars();
 
@@ -317,23 +316,7 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
             }
         }
     }
-    let var_lets: Vec<TokenStream> = (0..n_fields + PROVIDED.len())
-        .filter(|i| used_vars >> i & 1 == 1)
-        .map(|i| {
-            let v = format_ident!("v{}", i);
-            if i < n_fields {
-                let f = &fields[i].ident;
-                if fields[i].per_hinge {
-                    quote!(let #v: f64 = self.#f.get(q.hinge).copied().unwrap_or(f64::NAN);)
-                } else {
-                    quote!(let #v: f64 = self.#f;)
-                }
-            } else {
-                let p = format_ident!("{}", PROVIDED[i - n_fields]);
-                quote!(let #v: f64 = q.#p;)
-            }
-        })
-        .collect();
+    let var_lets = var_lets(fields, used_vars);
     let k = hoisted.len();
     let hoisted_exprs: Vec<TokenStream> = hoisted.iter().map(|&h| free(arena, h)).collect();
     let step_updates: Vec<TokenStream> = hoisted
@@ -512,6 +495,29 @@ fn expr_impl(e: &syn::Expr, fields: &[Field], errors: &mut Vec<syn::Error>) -> O
     })
 }
 
+/// `let vI: f64 = …;` for every variable in the bit set `used`: fields (`self.f`, or hinge `q.hinge`'s entry
+/// of a per-hinge field), then the provided names (`q.theta_bar`, …).
+fn var_lets(fields: &[Field], used: u64) -> Vec<TokenStream> {
+    let n_fields = fields.len();
+    (0..n_fields + PROVIDED.len())
+        .filter(|i| used >> i & 1 == 1)
+        .map(|i| {
+            let v = format_ident!("v{}", i);
+            if i < n_fields {
+                let f = &fields[i].ident;
+                if fields[i].per_hinge {
+                    quote!(let #v: f64 = self.#f.get(q.hinge).copied().unwrap_or(f64::NAN);)
+                } else {
+                    quote!(let #v: f64 = self.#f;)
+                }
+            } else {
+                let p = format_ident!("{}", PROVIDED[i - n_fields]);
+                quote!(let #v: f64 = q.#p;)
+            }
+        })
+        .collect()
+}
+
 /// The code of one scheduled node, its operands spelled by `operand`.
 fn node_code(arena: &Arena, id: Id, operand: &dyn Fn(Id) -> TokenStream) -> TokenStream {
     match arena.node(id) {
@@ -578,23 +584,7 @@ fn parameter_methods(compiled: &Compiled, fields: &[Field]) -> TokenStream {
         }
     };
     let used = pd.used_vars();
-    let var_lets: Vec<TokenStream> = (0..n_fields + PROVIDED.len())
-        .filter(|i| used >> i & 1 == 1)
-        .map(|i| {
-            let v = format_ident!("v{}", i);
-            if i < n_fields {
-                let f = &fields[i].ident;
-                if fields[i].per_hinge {
-                    quote!(let #v: f64 = self.#f.get(q.hinge).copied().unwrap_or(f64::NAN);)
-                } else {
-                    quote!(let #v: f64 = self.#f;)
-                }
-            } else {
-                let p = format_ident!("{}", PROVIDED[i - n_fields]);
-                quote!(let #v: f64 = q.#p;)
-            }
-        })
-        .collect();
+    let var_lets = var_lets(fields, used);
     let lets: Vec<TokenStream> = pd
         .order
         .iter()
@@ -656,6 +646,9 @@ fn parameter_methods(compiled: &Compiled, fields: &[Field]) -> TokenStream {
         }
         fn parameters(&self) -> ::std::vec::Vec<::hinge_core::__private::PsiParameter> {
             ::std::vec![#(#infos),*]
+        }
+        fn n_parameters(&self) -> usize {
+            #n_fields
         }
         #[allow(unused_variables, clippy::all)]
         fn parameter_derivatives(&self, q: &::hinge_core::__private::HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {

@@ -791,10 +791,7 @@ pub fn fit<'py>(
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
-    let params = NewtonParams {
-        max_iterations: 500,
-        ..newton_params(500, gradient_tolerance)?
-    };
+    let params = newton_params(500, gradient_tolerance)?;
     let pins = system.pins()?;
     let sys = system.system(py)?;
     let mut variables = Vec::new();

@@ -787,12 +787,12 @@ impl<'a> Fit<'a> {
         u: &[Vec<f64>],
     ) -> Result<(), AdjointError> {
         let mut columns: Vec<(String, Vec<f64>)> = Vec::new();
+        let values = self.parameter_values(u);
         for (v, uv) in self.variables.iter().zip(u) {
             if uv.len() != 1 {
                 continue;
             }
             let mut col = vec![0.0; 3 * x.len()];
-            let values = self.parameter_values(u);
             for l in &v.links {
                 let Some(pi) = self.linked.iter().position(|(n, _)| n == l.parameter()) else {
                     continue;

@@ -287,12 +287,7 @@ impl<P: HingePsi> BendingModel<P> {
     {
         let mut psi = self.psi.clone();
         change(&mut psi);
-        psi.validate(self.rest.len())?;
-        if !psi.second_derivative_vanishes() && !self.couples_wings(self.hessian_mode) {
-            return Err(EvalError::Pattern {
-                message: "the changed energy has ψ″ ≠ 0 but the model was built for ψ″ ≡ 0 (no wing couplings); build a new model".into(),
-            });
-        }
+        self.check_changed_psi(&psi)?;
         self.psi = psi;
         self.rehoist();
         Ok(())
@@ -314,21 +309,24 @@ impl<P: HingePsi> BendingModel<P> {
             })
         })?;
         self.psi.set_parameter_values(index, values)?;
-        let check = self.psi.validate(self.rest.len()).map_err(EvalError::from).and_then(|()| {
-            if !self.psi.second_derivative_vanishes() && !self.couples_wings(self.hessian_mode) {
-                Err(EvalError::Pattern {
-                    message: "the changed energy has ψ″ ≠ 0 but the model was built for ψ″ ≡ 0 (no wing couplings); build a new model".into(),
-                })
-            } else {
-                Ok(())
-            }
-        });
-        if let Err(e) = check {
+        if let Err(e) = self.check_changed_psi(&self.psi) {
             // The old values were accepted before: putting them back cannot fail.
             let _ = self.psi.set_parameter_values(index, &old);
             return Err(e);
         }
         self.rehoist();
+        Ok(())
+    }
+
+    /// Whether a changed energy `psi` still fits the model: its parameters fit the mesh, and it has no ψ″
+    /// the pattern lacks wing couplings for.
+    fn check_changed_psi(&self, psi: &P) -> Result<(), EvalError> {
+        psi.validate(self.rest.len())?;
+        if !psi.second_derivative_vanishes() && !self.couples_wings(self.hessian_mode) {
+            return Err(EvalError::Pattern {
+                message: "the changed energy has ψ″ ≠ 0 but the model was built for ψ″ ≡ 0 (no wing couplings); build a new model".into(),
+            });
+        }
         Ok(())
     }
 

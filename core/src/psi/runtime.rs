@@ -325,6 +325,10 @@ impl<const N: usize> HingePsi for RuntimePsi<N> {
             .collect()
     }
 
+    fn n_parameters(&self) -> usize {
+        self.names.len()
+    }
+
     fn parameter_derivatives(&self, q: &HingeQuantities, theta: f64, out: &mut [[f64; 2]]) -> bool {
         let n = self.names.len();
         if out.len() != n + 1 {
