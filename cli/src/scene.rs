@@ -403,6 +403,10 @@ pub struct SolverSpec {
     /// unset: off).
     #[serde(default)]
     pub relative_step_tolerance: Option<f64>,
+    /// After a full step of a shifted or definite Newton system, keep doubling it while the incremental
+    /// potential decreases (default true; false gives the Newton path of versions before it).
+    #[serde(default = "default_extrapolate")]
+    pub extrapolate: bool,
     /// `implicit-euler` (default: Newton on the incremental potential) or `symplectic-euler` (explicit,
     /// `substeps` per frame; stable only below `2/ω_max`, see `hinge_solver::explicit` and `hinge
     /// stability`). The Newton keys apply to implicit Euler and to `--static`.
@@ -419,6 +423,10 @@ fn default_integrator() -> String {
 
 fn default_substeps() -> usize {
     1
+}
+
+fn default_extrapolate() -> bool {
+    true
 }
 
 fn default_globalization() -> String {
@@ -449,6 +457,7 @@ impl Default for SolverSpec {
             globalization: default_globalization(),
             relative_gradient_tolerance: None,
             relative_step_tolerance: None,
+            extrapolate: default_extrapolate(),
             integrator: default_integrator(),
             substeps: default_substeps(),
         }

@@ -434,3 +434,42 @@ fn a_short_shifted_step_is_not_taken_for_convergence() {
     assert!((x[0].norm() - 1.0).abs() < 2e-6, "{}", x[0]);
     assert!(g < 5.0, "gradient {g}");
 }
+
+#[test]
+fn extrapolation_escapes_a_saddle_in_few_iterations() {
+    // From 1e-6 off the top of the well the Hessian is −a·I: a shift σ > a is needed, and each shifted
+    // step multiplies |x| by σ/(σ − a), 4/3 for the ladder's σ = 4a. Without extrapolation Newton crawls
+    // off the saddle (log(1e6)/log(4/3) ≈ 48 iterations); doubling the full shifted step while F
+    // decreases leaves it in a few. Both must end at the minimum |x| = 1 with a small gradient.
+    let run = |extrapolate: bool| {
+        let well = DoubleWell {
+            n: 1,
+            a: 1e6,
+            b: 1e6,
+            diag: Vec::new(),
+        };
+        let mut system = System::new(1, vec![Box::new(well)]).unwrap();
+        let params = NewtonParams {
+            gradient_tolerance: 1e-6,
+            max_iterations: 200,
+            extrapolate,
+            ..NewtonParams::default()
+        };
+        let pins = Pins::new(1, Vec::new()).unwrap();
+        let mut newton = Newton::new(&system, &pins, Box::new(FaerLlt::default()), params).unwrap();
+        let mut x = vec![Vector3::new(1e-6, 0.0, 0.0)];
+        let stats = newton.minimize(&mut system, &mut x, None).unwrap();
+        assert!((x[0].norm() - 1.0).abs() < 1e-12, "{}", x[0]);
+        assert!(*stats.gradient_norms.last().unwrap() <= 1e-6, "{stats:?}");
+        stats
+    };
+    let (with, without) = (run(true), run(false));
+    println!(
+        "iterations with extrapolation {}, without {}",
+        with.iterations, without.iterations
+    );
+    assert!(with.iterations <= 12, "{with:?}");
+    assert!(without.iterations >= 3 * with.iterations, "{without:?}");
+    // Extrapolation trials are energy evaluations only, counted with the line search; no factorization.
+    assert!(with.factorizations < without.factorizations);
+}
