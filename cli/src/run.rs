@@ -104,7 +104,7 @@ pub struct RunSummary {
     pub frames: usize,
     /// Newton iterations, summed.
     pub newton_iterations: usize,
-    /// Line-search halvings, summed.
+    /// Line-search trials after the first (halvings and extrapolation doublings), summed.
     pub line_search_steps: usize,
     /// Seconds in bending evaluation + assembly.
     pub bending_seconds: f64,
@@ -970,7 +970,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         format!("{} frames", summary.frames)
     };
     println!(
-        "done: {done}, {} Newton iterations ({} line-search halvings, {} factorizations, {} substeps, largest final gradient norm {:.2e}); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
+        "done: {done}, {} Newton iterations ({} line-search steps, {} factorizations, {} substeps, largest final gradient norm {:.2e}); time: bending {:.3} s, other energies {:.3} s, linear solve {:.3} s, total {:.3} s{}",
         summary.newton_iterations,
         summary.line_search_steps,
         summary.factorizations,

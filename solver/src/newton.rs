@@ -223,7 +223,7 @@ impl Default for NewtonParams {
 pub struct NewtonStats {
     /// Newton iterations.
     pub iterations: usize,
-    /// Line-search halvings, summed.
+    /// Line-search trials after the first: halvings, and the doublings of an extrapolated step, summed.
     pub line_search_steps: usize,
     /// Numeric factorizations attempted (failed shifted ones included).
     pub factorizations: usize,
