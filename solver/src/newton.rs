@@ -740,9 +740,7 @@ impl Newton {
         let slope = dot(&w.g, &w.d);
         let mut alpha = 1.0;
         for _ in 0..=p.max_line_search {
-            for (k, &dof) in self.reduced.dofs.iter().enumerate() {
-                w.trial[dof / 3][dof % 3] = w.cur[dof / 3][dof % 3] + alpha * w.d[k];
-            }
+            self.place_trial(w, alpha);
             // Near convergence the predicted decrease drops below the rounding of F: then accept any trial
             // that does not increase F beyond that rounding, instead of halving against noise.
             let noise = 8.0 * f64::EPSILON * f.abs().max(f64::MIN_POSITIVE);
@@ -765,9 +763,7 @@ impl Newton {
         }
         (alpha, None)
     }
-}
 
-impl Newton {
     /// After a full shifted or definite step with F = `f1`: doubles the step while F keeps decreasing
     /// (escaping a saddle along a negative-curvature direction; module documentation, Extrapolation),
     /// leaving the best trial in `w.trial`. Returns its step length and F.
@@ -780,9 +776,7 @@ impl Newton {
         let (mut best_alpha, mut best) = (1.0, f1);
         let mut alpha = 2.0;
         for _ in 0..12 {
-            for (k, &dof) in self.reduced.dofs.iter().enumerate() {
-                w.trial[dof / 3][dof % 3] = w.cur[dof / 3][dof % 3] + alpha * w.d[k];
-            }
+            self.place_trial(w, alpha);
             s.stats.line_search_steps += 1;
             match s.eval(&w.trial, Request::VALUE) {
                 Ok(ft) if ft.is_finite() && ft < best => {
@@ -793,10 +787,15 @@ impl Newton {
                 _ => break,
             }
         }
-        for (k, &dof) in self.reduced.dofs.iter().enumerate() {
-            w.trial[dof / 3][dof % 3] = w.cur[dof / 3][dof % 3] + best_alpha * w.d[k];
-        }
+        self.place_trial(w, best_alpha);
         (best_alpha, Some(best))
+    }
+
+    /// `w.trial = w.cur + alpha · w.d` on the free dofs (pinned entries keep `w.cur`'s values).
+    fn place_trial(&self, w: &mut Work, alpha: f64) {
+        for (k, &dof) in self.reduced.dofs.iter().enumerate() {
+            w.trial[dof / 3][dof % 3] = w.cur[dof / 3][dof % 3] + alpha * w.d[k];
+        }
     }
 }
 

@@ -920,6 +920,48 @@ fn fitting_recovers_a_graded_stiffness_field_along_a_strip() {
     assert!(rms < 0.05, "{rms}");
 }
 
+/// Sets the rest angles of `system` (pins of `c`) to `truth`, takes the equilibrium from the rest state as the
+/// target, resets the rest angles to zero and fits them back (`fit_to` under `label`). Returns the fit and the
+/// target.
+fn fit_rest_angles(
+    c: &Cantilever,
+    system: &mut System,
+    truth: &[f64],
+    label: &str,
+) -> (hinge_solver::adjoint::FitResult, Vec<Vector3<f64>>) {
+    system.set_parameter("bending.theta_bar", truth).unwrap();
+    let mut newton = tight_newton(system, &c.pins);
+    let mut target = c.rest.positions().to_vec();
+    newton.minimize(system, &mut target, None).unwrap();
+    let m = truth.len();
+    let variable = FitVariable {
+        name: "bending.rest_angles".into(),
+        start: vec![0.0; m],
+        positive: false,
+        links: vec![Link::Value {
+            parameter: "bending.theta_bar".into(),
+        }],
+    };
+    system
+        .set_parameter("bending.theta_bar", &vec![0.0; m])
+        .unwrap();
+    let options = FitOptions {
+        max_iterations: 400,
+        max_step: 0.3,
+        ..FitOptions::default()
+    };
+    let r = fit_to(
+        c,
+        system,
+        &mut newton,
+        variable,
+        options,
+        target.clone(),
+        label,
+    );
+    (r, target)
+}
+
 #[test]
 fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
     // A sheet clamped along x = 0 with a crease across it (rest angle 0.6 rad on the hinges of the column
@@ -941,36 +983,8 @@ fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
         })
         .collect();
     assert!(truth.iter().filter(|t| **t != 0.0).count() >= 5);
-    system.set_parameter("bending.theta_bar", &truth).unwrap();
-    let mut newton = tight_newton(&system, &c.pins);
-    let mut target = x0.to_vec();
-    newton.minimize(&mut system, &mut target, None).unwrap();
     let m = truth.len();
-    let variable = FitVariable {
-        name: "bending.rest_angles".into(),
-        start: vec![0.0; m],
-        positive: false,
-        links: vec![Link::Value {
-            parameter: "bending.theta_bar".into(),
-        }],
-    };
-    system
-        .set_parameter("bending.theta_bar", &vec![0.0; m])
-        .unwrap();
-    let options = FitOptions {
-        max_iterations: 400,
-        max_step: 0.3,
-        ..FitOptions::default()
-    };
-    let r = fit_to(
-        &c,
-        &mut system,
-        &mut newton,
-        variable,
-        options,
-        target,
-        "crease",
-    );
+    let (r, _) = fit_rest_angles(&c, &mut system, &truth, "crease");
     let rms = rms_relative(&r.values[0], &truth);
     println!("rest angles of {m} hinges: RMS error {:.2}%", 100.0 * rms);
     assert!(rms < 0.05, "{rms}");
@@ -1012,43 +1026,15 @@ fn fitted_rest_angles_of_an_irregular_sheet_reproduce_its_shape_but_are_not_uniq
         .map(|h| hinge_core::hinge::theta_only(&h.vertices.map(|v| rolled[v])).unwrap())
         .collect();
     assert!(truth.iter().fold(0.0f64, |m, t| m.max(t.abs())) > 0.02);
-    system.set_parameter("bending.theta_bar", &truth).unwrap();
-    let mut newton = tight_newton(&system, &c.pins);
-    let mut target = x0.to_vec();
-    newton.minimize(&mut system, &mut target, None).unwrap();
-    let target_copy = target.clone();
     let m = truth.len();
-    let variable = FitVariable {
-        name: "bending.rest_angles".into(),
-        start: vec![0.0; m],
-        positive: false,
-        links: vec![Link::Value {
-            parameter: "bending.theta_bar".into(),
-        }],
-    };
-    system
-        .set_parameter("bending.theta_bar", &vec![0.0; m])
-        .unwrap();
-    let options = FitOptions {
-        max_iterations: 400,
-        max_step: 0.3,
-        ..FitOptions::default()
-    };
-    let r = fit_to(
-        &c,
-        &mut system,
-        &mut newton,
-        variable,
-        options,
-        target,
-        "rest angles",
-    );
+    let (r, target) = fit_rest_angles(&c, &mut system, &truth, "rest angles");
     let rms = rms_relative(&r.values[0], &truth);
-    println!(
-        "rest angles of {m} hinges on an irregular sheet: shape matched to {:.1e} m, rest angles {:.1}% RMS from the rolled ones (not unique)",
+    let worst =
         r.x.iter()
-            .zip(&target_copy)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).norm())),
+            .zip(&target)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).norm()));
+    println!(
+        "rest angles of {m} hinges on an irregular sheet: shape matched to {worst:.1e} m, rest angles {:.1}% RMS from the rolled ones (not unique)",
         100.0 * rms
     );
     assert!(
@@ -1057,10 +1043,6 @@ fn fitted_rest_angles_of_an_irregular_sheet_reproduce_its_shape_but_are_not_uniq
         r.loss,
         r.initial_loss
     );
-    let worst =
-        r.x.iter()
-            .zip(&target_copy)
-            .fold(0.0f64, |m, (a, b)| m.max((a - b).norm()));
     assert!(worst < 1e-5, "{worst}");
 }
 

@@ -398,26 +398,31 @@ impl Energy for DoubleWell {
     }
 }
 
-#[test]
-fn a_short_shifted_step_is_not_taken_for_convergence() {
-    // From near the top of the well the Hessian is −a·I: the shifted steps are short (about a third of
-    // |x|), far shorter than a user's absolute step tolerance of 1e-3. Newton must not stop there: it
-    // continues to the minimum and says so with a small gradient.
+/// One vertex in the double well `a = b = 1e6` (minimum on |x| = 1) and a Newton bound to it with `params`.
+fn double_well_newton(params: NewtonParams) -> (System, Newton) {
     let well = DoubleWell {
         n: 1,
         a: 1e6,
         b: 1e6,
         diag: Vec::new(),
     };
-    let mut system = System::new(1, vec![Box::new(well)]).unwrap();
-    let params = NewtonParams {
+    let system = System::new(1, vec![Box::new(well)]).unwrap();
+    let pins = Pins::new(1, Vec::new()).unwrap();
+    let newton = Newton::new(&system, &pins, Box::new(FaerLlt::default()), params).unwrap();
+    (system, newton)
+}
+
+#[test]
+fn a_short_shifted_step_is_not_taken_for_convergence() {
+    // From near the top of the well the Hessian is −a·I: the shifted steps are short (about a third of
+    // |x|), far shorter than a user's absolute step tolerance of 1e-3. Newton must not stop there: it
+    // continues to the minimum and says so with a small gradient.
+    let (mut system, mut newton) = double_well_newton(NewtonParams {
         gradient_tolerance: 1e-6,
         step_tolerance: 1e-3,
         max_iterations: 200,
         ..NewtonParams::default()
-    };
-    let pins = Pins::new(1, Vec::new()).unwrap();
-    let mut newton = Newton::new(&system, &pins, Box::new(FaerLlt::default()), params).unwrap();
+    });
     let mut x = vec![Vector3::new(1e-3, 0.0, 0.0)];
     let stats = newton.minimize(&mut system, &mut x, None).unwrap();
     let g = stats.gradient_norms.last().copied().unwrap();
@@ -442,21 +447,12 @@ fn extrapolation_escapes_a_saddle_in_few_iterations() {
     // off the saddle (log(1e6)/log(4/3) ≈ 48 iterations); doubling the full shifted step while F
     // decreases leaves it in a few. Both must end at the minimum |x| = 1 with a small gradient.
     let run = |extrapolate: bool| {
-        let well = DoubleWell {
-            n: 1,
-            a: 1e6,
-            b: 1e6,
-            diag: Vec::new(),
-        };
-        let mut system = System::new(1, vec![Box::new(well)]).unwrap();
-        let params = NewtonParams {
+        let (mut system, mut newton) = double_well_newton(NewtonParams {
             gradient_tolerance: 1e-6,
             max_iterations: 200,
             extrapolate,
             ..NewtonParams::default()
-        };
-        let pins = Pins::new(1, Vec::new()).unwrap();
-        let mut newton = Newton::new(&system, &pins, Box::new(FaerLlt::default()), params).unwrap();
+        });
         let mut x = vec![Vector3::new(1e-6, 0.0, 0.0)];
         let stats = newton.minimize(&mut system, &mut x, None).unwrap();
         assert!((x[0].norm() - 1.0).abs() < 1e-12, "{}", x[0]);
