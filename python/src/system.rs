@@ -19,7 +19,7 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
-    ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
+    Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -247,6 +247,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &NewtonStats) -> PyResult<Bound<'py, PyDi
     d.set_item("newton_iterations", s.iterations)?;
     d.set_item("line_search_steps", s.line_search_steps)?;
     d.set_item("factorizations", s.factorizations)?;
+    d.set_item("definite_iterations", s.definite_iterations)?;
     d.set_item(
         "final_gradient_norm",
         s.gradient_norms.last().copied().unwrap_or(f64::NAN),
@@ -486,33 +487,54 @@ impl PySystem {
     }
 }
 
-fn newton_params(max_iterations: usize, gradient_tolerance: f64) -> PyResult<NewtonParams> {
+/// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name, and
+/// [`NewtonParams::extrapolate`].
+fn newton_params(
+    max_iterations: usize,
+    gradient_tolerance: f64,
+    globalization: &str,
+    extrapolate: bool,
+) -> PyResult<NewtonParams> {
     if max_iterations == 0 || !(gradient_tolerance > 0.0 && gradient_tolerance.is_finite()) {
         return Err(value_error(format!(
             "max_iterations must be ≥ 1 and gradient_tolerance positive and finite (got {max_iterations}, {gradient_tolerance})"
         )));
     }
+    let globalization = Globalization::from_name(globalization).ok_or_else(|| {
+        value_error(format!(
+            "globalization must be \"shifted-exact\" or \"project-on-demand\", got {globalization:?}"
+        ))
+    })?;
     Ok(NewtonParams {
         max_iterations,
         gradient_tolerance,
+        globalization,
+        extrapolate,
         ..NewtonParams::default()
     })
 }
 
-/// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8)`: the equilibrium ∇E = 0 from
-/// `X0` (pinned vertices held at their `X0` positions) by Newton. Returns `(X, stats)`; a failed solve raises
-/// `ValueError` with the solver's message.
+/// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
+/// extrapolate=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices held at their `X0` positions) by
+/// Newton. Returns `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
 #[pyfunction]
-#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8))]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true))]
 pub fn solve_static<'py>(
     py: Python<'py>,
     system: &mut PySystem,
     x0: PyReadonlyArray2<'py, f64>,
     max_iterations: usize,
     gradient_tolerance: f64,
+    globalization: &str,
+    extrapolate: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
-    let params = newton_params(max_iterations, gradient_tolerance)?;
+    let params = newton_params(
+        max_iterations,
+        gradient_tolerance,
+        globalization,
+        extrapolate,
+    )?;
     let pins = system.pins()?;
     system.ensure(py)?;
     let Some((sys, _, _)) = &mut system.built else {
@@ -555,9 +577,10 @@ impl PyStepper {
 #[pymethods]
 impl PyStepper {
     /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
-    /// `density`; the system's current terms and pins are copied.
+    /// `density`; the system's current terms and pins are copied. `globalization` and `extrapolate` as in
+    /// `solve_static`.
     #[new]
-    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8))]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -568,6 +591,8 @@ impl PyStepper {
         v0: Option<PyReadonlyArray2<'_, f64>>,
         max_iterations: usize,
         gradient_tolerance: f64,
+        globalization: &str,
+        extrapolate: bool,
     ) -> PyResult<Self> {
         let x = system.positions(&x0)?;
         let v = match v0 {
@@ -579,7 +604,12 @@ impl PyStepper {
                 "density must be positive and finite, got {density}"
             )));
         }
-        let params = newton_params(max_iterations, gradient_tolerance)?;
+        let params = newton_params(
+            max_iterations,
+            gradient_tolerance,
+            globalization,
+            extrapolate,
+        )?;
         let pins = system.pins()?;
         let sys = py.detach(|| system.build()).map_err(value_error)?;
         let masses = lumped_masses(&system.rest, density);
@@ -791,7 +821,7 @@ pub fn fit<'py>(
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
-    let params = newton_params(500, gradient_tolerance)?;
+    let params = newton_params(500, gradient_tolerance, "shifted-exact", true)?;
     let pins = system.pins()?;
     let sys = system.system(py)?;
     let mut variables = Vec::new();

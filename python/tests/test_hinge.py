@@ -257,6 +257,44 @@ def test_system_composes_energies_and_matches_its_parts():
     assert abs(fd - g[i]) <= 1e-5 * max(1.0, abs(g[i]))
 
 
+def test_newton_globalization_and_extrapolation_switches():
+    # A sheet started compressed to 85% of its width buckles: its exact Hessian is indefinite at the start.
+    V, F = sheet(8, 3, 29, jitter=0.05)
+    V = V * [0.3, 0.3, 1.0]
+    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-3).add_membrane(1e5, 0.3, 1e-3)
+    s.add_gravity(0.5)
+    clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
+    s.pin(clamp)
+    X0 = V.copy()
+    X0[:, 0] *= 0.85
+    X0[:, 2] += 1e-4 * np.sin(np.pi * V[:, 0] / 0.3)
+    results = {}
+    for g in ("shifted-exact", "project-on-demand"):
+        for e in (True, False):
+            X, st = hinge.solve_static(s, X0, gradient_tolerance=1e-9, globalization=g, extrapolate=e)
+            assert st["final_gradient_norm"] <= 1e-9
+            results[(g, e)] = (X, st)
+    # The shift never asks for the definite Hessian; project on demand does, here.
+    assert all(results[("shifted-exact", e)][1]["definite_iterations"] == 0 for e in (True, False))
+    assert results[("project-on-demand", False)][1]["definite_iterations"] > 0
+    # The switches change the path (counts differ somewhere), not the problem: each end is an equilibrium.
+    counts = {k: (st["newton_iterations"], st["line_search_steps"]) for k, (_, st) in results.items()}
+    assert len(set(counts.values())) > 1, counts
+    free = np.setdiff1d(np.arange(len(V)), clamp)
+    for X, _ in results.values():
+        _, g = s.evaluate(X, hessian=False)
+        assert np.abs(g.reshape(-1, 3)[free]).max() <= 1e-9
+    for bad in ({"globalization": "projected"}, {"extrapolate": 1}):
+        with pytest.raises(ValueError):
+            hinge.solve_static(s, X0, **bad)
+        with pytest.raises(ValueError):
+            hinge.ImplicitEuler(s, V, 0.01, 0.1, **bad)
+    # The stepper takes them too.
+    t = hinge.ImplicitEuler(s, V, 0.01, 0.1, globalization="project-on-demand", extrapolate=False)
+    X, st = t.step()
+    assert st["final_gradient_norm"] <= 1e-8 and "definite_iterations" in st
+
+
 def test_static_solve_reaches_equilibrium_and_holds_pins():
     V, F = sheet(8, 3, 23, jitter=0.05)
     V = V * [0.3, 0.3, 1.0]

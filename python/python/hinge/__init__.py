@@ -255,11 +255,29 @@ class System:
         return E, g, _sp.csr_matrix((data, indices, indptr), shape=(n, n))
 
 
-def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8):
+def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
+                 extrapolate=True):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
     system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
-    ``line_search_steps``, ``factorizations``, ``final_gradient_norm``, ``gradient_norms``)."""
-    return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance))
+    ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``final_gradient_norm``,
+    ``gradient_norms``). ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
+    does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
+    ``extrapolate`` tries longer steps after a full shifted or definite one (as the scene keys
+    ``solver.globalization`` and ``solver.extrapolate``)."""
+    return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance),
+                               _globalization(globalization), _flag("extrapolate", extrapolate))
+
+
+def _globalization(name):
+    if name not in ("shifted-exact", "project-on-demand"):
+        raise ValueError(f'globalization must be "shifted-exact" or "project-on-demand", got {name!r}')
+    return name
+
+
+def _flag(name, value):
+    if not isinstance(value, bool):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return value
 
 
 def adjoint_gradient(system, X, dloss_dx, parameters):
@@ -299,12 +317,15 @@ def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
 class ImplicitEuler:
     """Implicit Euler on a system: ``stepper = hinge.ImplicitEuler(system, X0, dt, density)``, then
     ``X, stats = stepper.step()`` per frame (a failing step is retried in substeps; a frame that cannot be
-    taken raises ``ValueError`` and leaves positions, velocities and time as they were)."""
+    taken raises ``ValueError`` and leaves positions, velocities and time as they were). ``globalization``
+    and ``extrapolate`` as in ``solve_static``."""
 
-    def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8):
+    def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
+                 globalization="shifted-exact", extrapolate=True):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), float(dt), float(density), V0,
-                                       int(max_iterations), float(gradient_tolerance))
+                                       int(max_iterations), float(gradient_tolerance),
+                                       _globalization(globalization), _flag("extrapolate", extrapolate))
 
     def step(self):
         return self._t.step()
