@@ -407,6 +407,10 @@ pub struct SolverSpec {
     /// potential decreases (default true; false gives the Newton path of versions before it).
     #[serde(default = "default_extrapolate")]
     pub extrapolate: bool,
+    /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
+    /// (`hinge_cli::run::membrane_stages`; default true; false: one Newton solve at the scene's material).
+    #[serde(default = "default_extrapolate")]
+    pub membrane_continuation: bool,
     /// `implicit-euler` (default: Newton on the incremental potential) or `symplectic-euler` (explicit,
     /// `substeps` per frame; stable only below `2/ω_max`, see `hinge_solver::explicit` and `hinge
     /// stability`). The Newton keys apply to implicit Euler and to `--static`.
@@ -458,6 +462,7 @@ impl Default for SolverSpec {
             relative_gradient_tolerance: None,
             relative_step_tolerance: None,
             extrapolate: default_extrapolate(),
+            membrane_continuation: default_extrapolate(),
             integrator: default_integrator(),
             substeps: default_substeps(),
         }
