@@ -257,14 +257,21 @@ def test_system_composes_energies_and_matches_its_parts():
     assert abs(fd - g[i]) <= 1e-5 * max(1.0, abs(g[i]))
 
 
-def test_newton_globalization_and_extrapolation_switches():
-    # A sheet started compressed to 85% of its width buckles: its exact Hessian is indefinite at the start.
-    V, F = sheet(8, 3, 29, jitter=0.05)
+def clamped_sheet(seed, k, young):
+    """A 0.3 m sheet (8 × 3 cells, jittered) with discrete-shells bending `k`, a 1 mm membrane of `young`
+    and gravity, clamped along its first column: `(V, F, system, clamped vertices)`."""
+    V, F = sheet(8, 3, seed, jitter=0.05)
     V = V * [0.3, 0.3, 1.0]
-    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-3).add_membrane(1e5, 0.3, 1e-3)
+    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=k).add_membrane(young, 0.3, 1e-3)
     s.add_gravity(0.5)
     clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
     s.pin(clamp)
+    return V, F, s, clamp
+
+
+def test_newton_globalization_and_extrapolation_switches():
+    # A sheet started compressed to 85% of its width buckles: its exact Hessian is indefinite at the start.
+    V, F, s, clamp = clamped_sheet(29, 1e-3, 1e5)
     X0 = V.copy()
     X0[:, 0] *= 0.85
     X0[:, 2] += 1e-4 * np.sin(np.pi * V[:, 0] / 0.3)
@@ -296,12 +303,7 @@ def test_newton_globalization_and_extrapolation_switches():
 
 
 def test_static_solve_reaches_equilibrium_and_holds_pins():
-    V, F = sheet(8, 3, 23, jitter=0.05)
-    V = V * [0.3, 0.3, 1.0]
-    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-2).add_membrane(1e6, 0.3, 1e-3)
-    s.add_gravity(0.5)
-    clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
-    s.pin(clamp)
+    V, F, s, clamp = clamped_sheet(23, 1e-2, 1e6)
     X, stats = hinge.solve_static(s, V)
     assert stats["final_gradient_norm"] <= 1e-8 and stats["newton_iterations"] > 0
     assert np.array_equal(X[clamp], V[clamp])
