@@ -36,9 +36,9 @@ use hinge_solver::linear::{
 use crate::scene::Scene;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
-    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, NewtonStats, PinMotion,
-    SubstepPolicy,
+    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SubstepPolicy,
 };
+use hinge_solver::statics::{membrane_scales, minimize_continued};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -321,49 +321,19 @@ fn min_clearance(obstacles: &[Obstacle], x: &[Vector3<f64>]) -> Option<f64> {
 /// Newton iteration budget of a static solve (at least; the scene's when larger).
 pub const STATIC_ITERATIONS: usize = 2000;
 
-/// Largest membrane strain the loads may cause at a continuation stage (see [`membrane_stages`]).
-pub const STAGE_STRAIN: f64 = 1e-2;
-
-/// The membrane stiffness scales, ascending and below 1, that a static solve passes through before the
-/// scene's own (membrane continuation; empty: none).
+/// The membrane stiffness scales, ascending and below 1, that a static solve of `scene` passes through
+/// before the scene's own (membrane continuation: [`hinge_solver::statics`]; empty: none): those of
+/// [`hinge_solver::statics::membrane_scales`] for the StVK membrane, none for the co-rotational one or when
+/// `solver.membrane_continuation` is false.
 ///
-/// Why: in a thin shell the membrane is stiffer than the bending by `12 ℓ² / h²` at the scale of an element
-/// of length `ℓ` (thickness `h`; 2·10⁴ for the 0.1 mm strips of `hinge stability`). A Newton step of the
-/// displacements is linear in the rotations, so it stretches the membrane by the square of the deflection it
-/// makes: its quadratic model holds only within deflections of about the thickness, and a strip that bends
-/// down by a large part of its length takes hundreds of line-searched steps (418 for Y = 1e10 Pa,
-/// h = 0.1 mm). With the membrane softened to that ratio's inverse, the same deflection takes a few steps;
-/// then the stiffness is raised by factors of at most 100 to the scene's, each stage a Newton solve from the
-/// last (all their iterations counted). The softest stage also keeps the strain the loads cause (weight per
-/// area times the mesh's extent, over `s Y h`) at most [`STAGE_STRAIN`], so the intermediate shapes are not
-/// stretched out of the final one's neighbourhood. No stages when the softest scale would be above 0.1, for
-/// the co-rotational membrane, or when `solver.membrane_continuation` is false.
-pub fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Vec<f64> {
-    let m = &scene.material;
-    if !scene.solver.membrane_continuation || m.membrane != "stvk" || !(m.young > 0.0) {
-        return Vec::new();
+/// # Errors
+/// A one-line message if the scene cannot be built or evaluated at rest.
+pub fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
+    if !scene.solver.membrane_continuation || scene.material.membrane != "stvk" {
+        return Ok(Vec::new());
     }
-    let l = mean_edge_length(rest);
-    let ratio = 12.0 * l * l / (m.thickness * m.thickness);
-    let x = rest.positions();
-    let (lo, hi) = x.iter().fold(
-        (
-            Vector3::repeat(f64::INFINITY),
-            Vector3::repeat(f64::NEG_INFINITY),
-        ),
-        |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-    );
-    let extent = if x.is_empty() { 0.0 } else { (hi - lo).norm() };
-    let load = m.density * Vector3::from(scene.gravity).norm() * extent / (m.young * m.thickness);
-    let softest = (1.0 / ratio).max(load / STAGE_STRAIN);
-    if !(softest < 0.1) {
-        return Vec::new();
-    }
-    // Stages s₀, …, evenly spaced in log scale, ratios of at most 100 up to 1 (excluded).
-    let n = (-softest.ln() / 100f64.ln()).ceil() as i32;
-    (0..n)
-        .map(|k| softest.powf(1.0 - f64::from(k) / f64::from(n)))
-        .collect()
+    let mut system = build(scene, rest, false)?.system;
+    membrane_scales(&mut system, rest).map_err(|e| e.to_string())
 }
 
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
@@ -393,28 +363,9 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
-    let mut stats = NewtonStats::default();
-    let young = scene.material.young;
-    for s in membrane_stages(scene, rest) {
-        system
-            .set_parameter("membrane.young", &[young * s])
-            .map_err(|e| e.to_string())?;
-        // A stage that fails leaves x where it was: the next, stiffer stage starts from there.
-        match newton.minimize(&mut system, &mut x, None) {
-            Ok(st) => stats.absorb(&st),
-            Err(e) => stats.absorb(&e.stats()),
-        }
-    }
-    // The scene's own membrane (set back through the same formula: bitwise the scene's material).
-    if system.parameter("membrane.young").is_ok() {
-        system
-            .set_parameter("membrane.young", &[young])
-            .map_err(|e| e.to_string())?;
-    }
-    let last = newton
-        .minimize(&mut system, &mut x, None)
+    let stages = membrane_stages(scene, rest)?;
+    let stats = minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages)
         .map_err(|e| format!("static solve: {e}"))?;
-    stats.absorb(&last);
     let mut summary = RunSummary {
         frames: 0,
         newton_iterations: stats.iterations,
@@ -427,11 +378,11 @@ pub fn equilibrium(
         n_vertices: rest.n_vertices(),
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
-        final_gradient_norm: last.gradient_norms.last().copied().unwrap_or(f64::NAN),
+        final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         factorizations: stats.factorizations,
         definite_iterations: stats.definite_iterations,
         substeps: 0,
-        max_final_gradient_norm: last.gradient_norms.last().copied().unwrap_or(f64::NAN),
+        max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
         interrupted: false,
         max_plastic_angle: None,
@@ -1080,7 +1031,7 @@ mod tests {
         let scene = strip(1e10, 1e-4);
         let rest = scene.rest_mesh(None).unwrap();
         let l = super::mean_edge_length(&rest);
-        let stages = membrane_stages(&scene, &rest);
+        let stages = membrane_stages(&scene, &rest).unwrap();
         assert!(stages.len() >= 2, "{stages:?}");
         let softest = stages[0];
         assert!(
@@ -1096,23 +1047,37 @@ mod tests {
                 "{stages:?}"
             );
         }
-        // A soft material: the loads bound the softening (strain ≤ 1% at the softest stage).
-        let soft = strip(1e6, 1e-3);
-        let s = membrane_stages(&soft, &rest);
+        // A soft material: the loads bound the softening (strain 1% at the softest stage): weight per area
+        // q = 0.1 kg/m² · 9.81 m/s², extent D = the strip's diagonal, ε = q D / (Y h).
+        let s = membrane_stages(&strip(1e8, 1e-4), &rest).unwrap();
         let extent = (0.3f64.powi(2) + 0.0125f64.powi(2)).sqrt();
-        let load = 1.0 * 9.81 * extent / (1e6 * 1e-3);
+        let bound = 0.1 * 9.81 * extent / (1e8 * 1e-4) / hinge_solver::statics::STAGE_STRAIN;
         assert!(
-            s.is_empty() || s[0] >= load / super::STAGE_STRAIN * (1.0 - 1e-12),
-            "{s:?}"
+            bound > 1e-4 / 12.0 * 1e-4 / (l * l) && bound < 0.1,
+            "{bound}"
+        );
+        assert!(
+            !s.is_empty() && (s[0] / bound - 1.0).abs() < 1e-9,
+            "{s:?} vs {bound}"
+        );
+        // Too soft to need it (the bound is above 0.1): no stages.
+        assert!(
+            membrane_stages(&strip(1e6, 1e-3), &rest)
+                .unwrap()
+                .is_empty()
         );
         // Thick plates, the co-rotational membrane and the scene key: no stages.
-        assert!(membrane_stages(&strip(1e10, 1e-2), &rest).is_empty());
+        assert!(
+            membrane_stages(&strip(1e10, 1e-2), &rest)
+                .unwrap()
+                .is_empty()
+        );
         let mut corot = strip(1e10, 1e-4);
         corot.material.membrane = "corotational".into();
-        assert!(membrane_stages(&corot, &rest).is_empty());
+        assert!(membrane_stages(&corot, &rest).unwrap().is_empty());
         let mut off = strip(1e10, 1e-4);
         off.solver.membrane_continuation = false;
-        assert!(membrane_stages(&off, &rest).is_empty());
+        assert!(membrane_stages(&off, &rest).unwrap().is_empty());
     }
 
     #[test]

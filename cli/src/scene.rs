@@ -408,7 +408,7 @@ pub struct SolverSpec {
     #[serde(default = "default_extrapolate")]
     pub extrapolate: bool,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
-    /// (`hinge_cli::run::membrane_stages`; default true; false: one Newton solve at the scene's material).
+    /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
     #[serde(default = "default_extrapolate")]
     pub membrane_continuation: bool,
     /// `implicit-euler` (default: Newton on the incremental potential) or `symplectic-euler` (explicit,

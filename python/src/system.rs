@@ -21,6 +21,7 @@ use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
+use hinge_solver::statics::{membrane_scales, minimize_continued};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
 };
@@ -515,10 +516,13 @@ fn newton_params(
 }
 
 /// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
-/// extrapolate=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices held at their `X0` positions) by
-/// Newton. Returns `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
+/// extrapolate=True, membrane_continuation=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices held
+/// at their `X0` positions) by Newton, through softer StVK membranes first when
+/// [`hinge_solver::statics::membrane_scales`] asks for it and `membrane_continuation` is set. Returns
+/// `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
 #[pyfunction]
-#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true))]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true))]
+#[allow(clippy::too_many_arguments)]
 pub fn solve_static<'py>(
     py: Python<'py>,
     system: &mut PySystem,
@@ -527,6 +531,7 @@ pub fn solve_static<'py>(
     gradient_tolerance: f64,
     globalization: &str,
     extrapolate: bool,
+    membrane_continuation: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let params = newton_params(
@@ -537,14 +542,19 @@ pub fn solve_static<'py>(
     )?;
     let pins = system.pins()?;
     system.ensure(py)?;
+    let rest = &system.rest;
     let Some((sys, _, _)) = &mut system.built else {
         return Err(value_error("system not built"));
     };
     let r = py.detach(|| -> Result<NewtonStats, String> {
+        let stages = if membrane_continuation {
+            membrane_scales(sys, rest).map_err(|e| e.to_string())?
+        } else {
+            Vec::new()
+        };
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
-        newton
-            .minimize(sys, &mut x, None)
+        minimize_continued(&mut newton, sys, &mut x, "membrane.young", &stages)
             .map_err(|e| format!("static solve: {e}"))
     });
     let stats = r.map_err(value_error)?;

@@ -302,6 +302,29 @@ def test_newton_globalization_and_extrapolation_switches():
     assert st["final_gradient_norm"] <= 1e-8 and "definite_iterations" in st
 
 
+def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations():
+    # A 0.3 m × 1.25 cm strip, 0.1 mm thick, Y = 1e10 Pa, clamped at one end, bends down by half its length
+    # under its own weight: the stiff membrane makes plain Newton slow (179 iterations against 25).
+    V, F = sheet(60, 5, 31, jitter=0.05)
+    V = V * [0.3, 0.0125 * 60 / 5, 1.0]
+    young, h, nu = 1e10, 1e-4, 0.3
+    d = young * h**3 / (12 * (1 - nu * nu))
+    s = hinge.System(V, F).add_bending(energy="tan-bending", k=d).add_membrane(young, nu, h)
+    s.add_gravity(0.1)
+    s.pin(np.flatnonzero(V[:, 0] <= 0.3 / 60 * 1.5))
+    runs = {}
+    for on in (True, False):
+        X, st = hinge.solve_static(s, V, gradient_tolerance=1e-9, membrane_continuation=on)
+        assert st["final_gradient_norm"] <= 1e-9
+        runs[on] = (X, st["newton_iterations"])
+    (X1, n1), (X0, n0) = runs[True], runs[False]
+    assert X1[:, 2].min() < -0.1  # a large deflection
+    assert np.abs(X1 - X0).max() <= 1e-7, np.abs(X1 - X0).max()
+    assert 2 * n1 < n0, (n1, n0)
+    with pytest.raises(ValueError):
+        hinge.solve_static(s, V, membrane_continuation="yes")
+
+
 def test_static_solve_reaches_equilibrium_and_holds_pins():
     V, F, s, clamp = clamped_sheet(23, 1e-2, 1e6)
     X, stats = hinge.solve_static(s, V)

@@ -43,3 +43,4 @@ pub mod adjoint;
 pub mod explicit;
 pub mod linear;
 pub mod newton;
+pub mod statics;

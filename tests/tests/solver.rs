@@ -1025,3 +1025,97 @@ fn symplectic_euler_matches_implicit_euler_on_small_steps_and_reports_a_blow_up(
         Err(SolverError::Input(_))
     ));
 }
+
+/// A 0.2 m × 2 cm strip, 0.1 mm thick (Y = 1e10 Pa, tan bending at the plate stiffness), clamped by its first
+/// two vertex columns, under its own weight (0.1 kg/m²): a thin shell whose membrane is 1e4 times stiffer
+/// than its bending at the element scale.
+fn thin_strip() -> (TriMesh, System, Pins) {
+    use hinge_energies::bending::TanBending;
+    use hinge_energies::membrane::StvkMembrane;
+    let rest = grid(40, 3, 0.2, 0.02, Diagonal::Alternating).unwrap();
+    let n = rest.n_vertices();
+    let (young, h, nu) = (1e10, 1e-4, 0.3);
+    let d = young * h * h * h / (12.0 * (1.0 - nu * nu));
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, TanBending { k: d }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StvkMembrane::new(&rest, young, nu, h).unwrap()),
+        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    let clamped: Vec<usize> = (0..n)
+        .filter(|&v| rest.positions()[v].x <= 0.2 / 40.0 * 1.5)
+        .collect();
+    let pins = Pins::new(n, clamped).unwrap();
+    let system = System::new(n, terms).unwrap();
+    (rest, system, pins)
+}
+
+#[test]
+fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
+    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    let (rest, mut sys, pins) = thin_strip();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-9,
+        step_tolerance: 1e-14,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    let scales = membrane_scales(&mut sys, &rest).unwrap();
+    assert!(!scales.is_empty(), "a thin shell gets stages");
+    assert!(scales.windows(2).all(|w| w[0] < w[1]) && scales[scales.len() - 1] < 1.0);
+    let solve = |sys: &mut System, scales: &[f64]| {
+        let mut newton = Newton::new(sys, &pins, default_solver(), params.clone()).unwrap();
+        let mut x = rest.positions().to_vec();
+        let stats = minimize_continued(&mut newton, sys, &mut x, "membrane.young", scales).unwrap();
+        (x, stats)
+    };
+    let (xc, sc) = solve(&mut sys, &scales);
+    assert_eq!(
+        sys.parameter("membrane.young").unwrap(),
+        vec![1e10],
+        "set back bitwise"
+    );
+    let (xp, sp) = solve(&mut sys, &[]);
+    let drop = rest
+        .positions()
+        .iter()
+        .zip(&xc)
+        .map(|(a, b)| a.z - b.z)
+        .fold(0.0, f64::max);
+    assert!(drop > 0.02, "a large deflection: {drop}");
+    let diff = xc
+        .iter()
+        .zip(&xp)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(diff <= 1e-8, "the same equilibrium: {diff}");
+    assert!(
+        2 * sc.iterations < sp.iterations,
+        "{} vs {}",
+        sc.iterations,
+        sp.iterations
+    );
+    // Failures leave x and the parameter as they were: an unknown parameter, and a final solve that runs out
+    // of iterations.
+    let x0 = rest.positions().to_vec();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
+    let mut x = x0.clone();
+    assert!(minimize_continued(&mut newton, &mut sys, &mut x, "membrane.nope", &scales).is_err());
+    assert_eq!(x, x0);
+    let mut newton = Newton::new(
+        &sys,
+        &pins,
+        default_solver(),
+        NewtonParams {
+            max_iterations: 2,
+            ..params
+        },
+    )
+    .unwrap();
+    assert!(minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).is_err());
+    assert_eq!(x, x0);
+    assert_eq!(sys.parameter("membrane.young").unwrap(), vec![1e10]);
+}

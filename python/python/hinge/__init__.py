@@ -256,16 +256,20 @@ class System:
 
 
 def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
-                 extrapolate=True):
+                 extrapolate=True, membrane_continuation=True):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
     system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``final_gradient_norm``,
     ``gradient_norms``). ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
     does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
     ``extrapolate`` tries longer steps after a full shifted or definite one (as the scene keys
-    ``solver.globalization`` and ``solver.extrapolate``)."""
+    ``solver.globalization`` and ``solver.extrapolate``). With ``membrane_continuation`` (as the scene key
+    ``solver.membrane_continuation``), a thin shell's StVK membrane is first softened to about the inverse of
+    its membrane/bending stiffness ratio and raised back in stages, each a Newton solve from the last (all
+    counted in the stats): thin stiff strips then take tens of iterations instead of hundreds."""
     return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance),
-                               _globalization(globalization), _flag("extrapolate", extrapolate))
+                               _globalization(globalization), _flag("extrapolate", extrapolate),
+                               _flag("membrane_continuation", membrane_continuation))
 
 
 def _globalization(name):
