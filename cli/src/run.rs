@@ -38,7 +38,7 @@ use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
     FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SubstepPolicy,
 };
-use hinge_solver::statics::{membrane_scales, minimize_continued};
+use hinge_solver::statics::{mean_edge_length, membrane_scales, minimize_continued};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -282,20 +282,6 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     })
 }
 
-/// The mean length of the rest mesh's edges (each triangle's three, shared edges counted twice): the length
-/// scale of the relative step test.
-fn mean_edge_length(rest: &TriMesh) -> f64 {
-    let x = rest.positions();
-    let (mut sum, mut count) = (0.0, 0usize);
-    for t in rest.triangles() {
-        for k in 0..3 {
-            sum += (x[t[(k + 1) % 3]] - x[t[k]]).norm();
-            count += 1;
-        }
-    }
-    if count == 0 { 0.0 } else { sum / count as f64 }
-}
-
 fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
     let r = rest.positions();
     let xmax = r.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max);
@@ -323,17 +309,20 @@ pub const STATIC_ITERATIONS: usize = 2000;
 
 /// The membrane stiffness scales, ascending and below 1, that a static solve of `scene` passes through
 /// before the scene's own (membrane continuation: [`hinge_solver::statics`]; empty: none): those of
-/// [`hinge_solver::statics::membrane_scales`] for the StVK membrane, none for the co-rotational one or when
-/// `solver.membrane_continuation` is false.
+/// [`hinge_solver::statics::membrane_scales`] on the scene's `system` for the StVK membrane, none for the
+/// co-rotational one or when `solver.membrane_continuation` is false.
 ///
 /// # Errors
-/// A one-line message if the scene cannot be built or evaluated at rest.
-pub fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
+/// A one-line message if the system cannot be evaluated at rest.
+pub fn membrane_stages(
+    scene: &Scene,
+    rest: &TriMesh,
+    system: &mut System,
+) -> Result<Vec<f64>, String> {
     if !scene.solver.membrane_continuation || scene.material.membrane != "stvk" {
         return Ok(Vec::new());
     }
-    let mut system = build(scene, rest, false)?.system;
-    membrane_scales(&mut system, rest).map_err(|e| e.to_string())
+    membrane_scales(system, rest).map_err(|e| e.to_string())
 }
 
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
@@ -363,7 +352,7 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
-    let stages = membrane_stages(scene, rest)?;
+    let stages = membrane_stages(scene, rest, &mut system)?;
     let stats = minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages)
         .map_err(|e| format!("static solve: {e}"))?;
     let mut summary = RunSummary {
@@ -1013,8 +1002,14 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
 
 #[cfg(test)]
 mod tests {
-    use super::{equilibrium, membrane_stages};
+    use super::{build, equilibrium};
     use crate::scene::{Scene, load};
+    use hinge_core::TriMesh;
+
+    fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
+        let mut system = build(scene, rest, false)?.system;
+        super::membrane_stages(scene, rest, &mut system)
+    }
 
     /// The clamped strip of `hinge stability` with Young's modulus `young` and thickness `h`.
     fn strip(young: f64, h: f64) -> Scene {
@@ -1030,7 +1025,7 @@ mod tests {
         // 0.1 mm: ratio 12 ℓ²/h² ≈ 2e4 (ℓ ≈ 4.3 mm), so the softest stage is about its inverse.
         let scene = strip(1e10, 1e-4);
         let rest = scene.rest_mesh(None).unwrap();
-        let l = super::mean_edge_length(&rest);
+        let l = hinge_solver::statics::mean_edge_length(&rest);
         let stages = membrane_stages(&scene, &rest).unwrap();
         assert!(stages.len() >= 2, "{stages:?}");
         let softest = stages[0];

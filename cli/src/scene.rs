@@ -409,7 +409,7 @@ pub struct SolverSpec {
     pub extrapolate: bool,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
     /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
-    #[serde(default = "default_extrapolate")]
+    #[serde(default = "default_membrane_continuation")]
     pub membrane_continuation: bool,
     /// `implicit-euler` (default: Newton on the incremental potential) or `symplectic-euler` (explicit,
     /// `substeps` per frame; stable only below `2/ω_max`, see `hinge_solver::explicit` and `hinge
@@ -430,6 +430,10 @@ fn default_substeps() -> usize {
 }
 
 fn default_extrapolate() -> bool {
+    true
+}
+
+fn default_membrane_continuation() -> bool {
     true
 }
 
@@ -462,7 +466,7 @@ impl Default for SolverSpec {
             relative_gradient_tolerance: None,
             relative_step_tolerance: None,
             extrapolate: default_extrapolate(),
-            membrane_continuation: default_extrapolate(),
+            membrane_continuation: default_membrane_continuation(),
             integrator: default_integrator(),
             substeps: default_substeps(),
         }

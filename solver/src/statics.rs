@@ -50,18 +50,15 @@ pub fn membrane_scales(system: &mut System, rest: &TriMesh) -> Result<Vec<f64>, 
         return Ok(Vec::new());
     };
     let x = rest.positions();
-    let (mut edges, mut count, mut area) = (0.0, 0usize, 0.0);
-    for t in rest.triangles() {
-        for k in 0..3 {
-            edges += (x[t[(k + 1) % 3]] - x[t[k]]).norm();
-            count += 1;
-        }
-        area += 0.5 * (x[t[1]] - x[t[0]]).cross(&(x[t[2]] - x[t[0]])).norm();
-    }
-    if count == 0 || !(young > 0.0 && thickness > 0.0 && area > 0.0) {
+    let area: f64 = rest
+        .triangles()
+        .iter()
+        .map(|t| 0.5 * (x[t[1]] - x[t[0]]).cross(&(x[t[2]] - x[t[0]])).norm())
+        .sum();
+    if !(young > 0.0 && thickness > 0.0 && area > 0.0) {
         return Ok(Vec::new());
     }
-    let l = edges / count as f64;
+    let l = mean_edge_length(rest);
     let mut out = system.new_output();
     system
         .evaluate_into(x, Request::GRADIENT, Parallelism::Rayon, &mut out)
@@ -89,6 +86,21 @@ pub fn membrane_scales(system: &mut System, rest: &TriMesh) -> Result<Vec<f64>, 
     Ok((0..n)
         .map(|k| softest.powf(1.0 - f64::from(k) / f64::from(n)))
         .collect())
+}
+
+/// The mean length of `rest`'s edges (each triangle's three, shared edges counted twice; 0 for no
+/// triangles): the element length of [`membrane_scales`], and the CLI's length scale of the relative step
+/// test.
+pub fn mean_edge_length(rest: &TriMesh) -> f64 {
+    let x = rest.positions();
+    let (mut sum, mut count) = (0.0, 0usize);
+    for t in rest.triangles() {
+        for k in 0..3 {
+            sum += (x[t[(k + 1) % 3]] - x[t[k]]).norm();
+            count += 1;
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
 }
 
 /// Minimises `system`'s energy from `x` (no inertia) by continuation in `parameter`: for each of `scales`,

@@ -1028,11 +1028,18 @@ fn symplectic_euler_matches_implicit_euler_on_small_steps_and_reports_a_blow_up(
 
 /// A 0.2 m × 2 cm strip, 0.1 mm thick (Y = 1e10 Pa, tan bending at the plate stiffness), clamped by its first
 /// two vertex columns, under its own weight (0.1 kg/m²): a thin shell whose membrane is 1e4 times stiffer
-/// than its bending at the element scale.
+/// than its bending at the element scale. The mesh is irregular (random diagonals, jittered, numbered at
+/// random, corners rotated), not a row-major grid.
 fn thin_strip() -> (TriMesh, System, Pins) {
     use hinge_energies::bending::TanBending;
     use hinge_energies::membrane::StvkMembrane;
-    let rest = grid(40, 3, 0.2, 0.02, Diagonal::Alternating).unwrap();
+    let sheet = hinge_core::shapes::irregular_sheet(41, 4, 7).unwrap();
+    let scaled = sheet
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(0.2 * p.x, 0.02 * p.y, 0.0))
+        .collect();
+    let rest = sheet.with_positions(scaled).unwrap();
     let n = rest.n_vertices();
     let (young, h, nu) = (1e10, 1e-4, 0.3);
     let d = young * h * h * h / (12.0 * (1.0 - nu * nu));
