@@ -248,7 +248,9 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             _ => return Err(format!("obstacles[{i}]: incomplete")),
         };
         let mut contact = Contact::new(n, obstacle, o.stiffness, o.margin)
-            .map_err(|e| format!("obstacles[{i}]: {e}"))?;
+            .map_err(|e| format!("obstacles[{i}]: {e}"))?
+            .with_smoothing(o.smoothing)
+            .map_err(|e| format!("obstacles[{i}].smoothing: {e}"))?;
         if let Some(m) = &motion {
             contact = contact
                 .with_motion(m.clone())

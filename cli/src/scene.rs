@@ -300,6 +300,10 @@ pub struct ObstacleSpec {
     /// Contact margin.
     #[serde(default)]
     pub margin: f64,
+    /// Smoothing length ε of a C² penalty (`hinge_energies::contact::Contact::with_smoothing`; 0, the
+    /// default: the quadratic penalty).
+    #[serde(default)]
+    pub smoothing: f64,
     /// A prescribed rigid motion (as `[[pins.groups]]`' `motion`): the sphere's centre, or the plane's point
     /// and normal, move with it; the obstacle given is its position at t = 0.
     pub motion: Option<MotionSpec>,

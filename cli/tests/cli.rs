@@ -466,6 +466,10 @@ fn scenes_are_listed_shown_and_validated() {
             "obstacles[0].radius",
         ),
         (
+            text.replace("margin = 0.005", "margin = 0.005\nsmoothing = -0.001"),
+            "obstacles[0].smoothing",
+        ),
+        (
             text.replace("energy = \"tan-bending\"", "energy = \"magic\""),
             "bending.energy",
         ),
@@ -525,6 +529,42 @@ fn scenes_are_listed_shown_and_validated() {
 }
 
 /// `summary.json` of `hinge run ARGS --out DIR --no-frames`.
+/// `[[obstacles]] smoothing`: the drape with the C² contact penalty (smoothing over the whole 5 mm margin)
+/// rests on the sphere like the quadratic one, within a millimetre of the margin, the far end dropping as
+/// far to 2%.
+#[test]
+fn smoothed_contact_drapes_like_the_quadratic_penalty() {
+    let dir = tmp("smoothed-contact");
+    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
+    let file = dir.join("smoothed.toml");
+    assert!(shown.contains("margin = 0.005\n"));
+    std::fs::write(
+        &file,
+        shown.replace("margin = 0.005\n", "margin = 0.005\nsmoothing = 0.005\n"),
+    )
+    .unwrap();
+    let args = ["--resolution", "12", "--frames", "60"];
+    let mut smoothed = vec![file.to_str().unwrap()];
+    smoothed.extend_from_slice(&args);
+    let mut quadratic = vec!["drape"];
+    quadratic.extend_from_slice(&args);
+    let a = run_summary(&dir.join("quadratic"), &quadratic);
+    let b = run_summary(&dir.join("smoothed"), &smoothed);
+    let number = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    println!(
+        "quadratic: {} iterations, smoothed: {}",
+        a["newton_iterations"], b["newton_iterations"]
+    );
+    for s in [&a, &b] {
+        let clearance = number(s, "min_clearance_to_sphere");
+        assert!(clearance > -1e-3, "clearance {clearance}");
+        assert!(number(s, "max_final_gradient_norm") <= 1e-6);
+    }
+    let (da, db) = (number(&a, "far_end_drop"), number(&b, "far_end_drop"));
+    assert!((da - db).abs() <= 0.02 * da, "far end {da} vs {db}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 fn run_summary(dir: &std::path::Path, args: &[&str]) -> serde_json::Value {
     let mut all = vec!["run"];
     all.extend_from_slice(args);

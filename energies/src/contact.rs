@@ -10,6 +10,15 @@
 //! A [`Request::definite`](hinge_core::bending::Request::definite) evaluation drops the `− κ s Hess d` term
 //! (positive semi-definite: `κ ∇d ∇dᵀ`); for the plane that is the exact Hessian.
 //!
+//! **Smoothing** ([`Contact::with_smoothing`], a length `ε ≥ 0`, default 0). The quadratic penalty's Hessian
+//! jumps from 0 to κ where a vertex crosses the margin, so Newton's quadratic model is wrong for every vertex
+//! a step carries across it (a lightly touching cloth crosses it back and forth). With `ε > 0` the penalty
+//! of `s = δ − d` is C²:
+//! `φ(s) = κ s³/(6ε)` for `0 < s < ε` and `φ(s) = ½ κ (s² − ε s + ε²/3)` for `s ≥ ε`
+//! (value, `φ′ = κ s²/(2ε)` resp. `κ (s − ε/2)`, and `φ″ = κ s/ε` resp. `κ` continuous at `ε` and at 0),
+//! so `∇E = −φ′ ∇d`, `Hess E = φ″ ∇d ∇dᵀ − φ′ Hess d`. `ε = 0` is the quadratic penalty above; deep
+//! penetrations are resisted as by it, shifted by `ε/2`.
+//!
 //! **Moving obstacles.** [`Contact::with_motion`] gives the obstacle a rigid [`Motion`]: at time `t` a
 //! sphere's centre is at `motion.target(centre, t)`, a plane passes through `motion.target(point, t)` with
 //! its normal turned by the motion's rotation. [`Energy::set_time`] places it (the time steppers call it with
@@ -54,6 +63,7 @@ pub struct Contact {
     motion: Option<(Obstacle, Motion)>,
     stiffness: f64,
     margin: f64,
+    smoothing: f64,
     n_vertices: usize,
     diag: Vec<usize>,
 }
@@ -105,9 +115,54 @@ impl Contact {
             motion: None,
             stiffness,
             margin,
+            smoothing: 0.0,
             n_vertices,
             diag: Vec::new(),
         })
+    }
+
+    /// A C² penalty that rises from zero curvature over the first `smoothing` (ε) of penetration into the
+    /// margin (module documentation, Smoothing); 0 is the quadratic penalty.
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for a negative or non-finite `smoothing`.
+    pub fn with_smoothing(mut self, smoothing: f64) -> Result<Self, EvalError> {
+        if !(smoothing >= 0.0 && smoothing.is_finite()) {
+            return Err(EvalError::Element {
+                element: "contact".into(),
+                message: format!("smoothing {smoothing} must be finite and non-negative"),
+            });
+        }
+        self.smoothing = smoothing;
+        Ok(self)
+    }
+
+    /// The smoothing length ε ([`Contact::with_smoothing`]).
+    pub fn smoothing(&self) -> f64 {
+        self.smoothing
+    }
+
+    /// The penalty `φ(s)` of a penetration `s` into the margin and its first two derivatives (module
+    /// documentation): `κ s²/2` without smoothing, C² with it; zero for `s ≤ 0`.
+    pub fn penalty(&self, s: f64) -> (f64, f64, f64) {
+        let (kappa, eps) = (self.stiffness, self.smoothing);
+        if !(s > 0.0) {
+            (0.0, 0.0, 0.0)
+        } else if eps == 0.0 {
+            (0.5 * kappa * s * s, kappa * s, kappa)
+        } else if s < eps {
+            (
+                kappa * s * s * s / (6.0 * eps),
+                kappa * s * s / (2.0 * eps),
+                kappa * s / eps,
+            )
+        } else {
+            (
+                0.5 * kappa * (s * s - eps * s + eps * eps / 3.0),
+                kappa * (s - 0.5 * eps),
+                kappa,
+            )
+        }
     }
 
     /// The obstacle moves along `motion` ([`Motion::target`] from its position at t = 0, the one given to
@@ -196,7 +251,7 @@ impl Energy for Contact {
         acc: &mut Accumulator,
     ) -> Result<f64, EvalError> {
         hinge_core::mesh::check_same_vertex_count(self.n_vertices, x.len())?;
-        let (kappa, delta) = (self.stiffness, self.margin);
+        let delta = self.margin;
         let mut e = 0.0;
         for (i, p) in x.iter().enumerate() {
             let (d, grad_d, hess_d) = match self.obstacle {
@@ -225,14 +280,15 @@ impl Energy for Contact {
             if !(s > 0.0) {
                 continue;
             }
-            e += 0.5 * kappa * s * s;
+            let (phi, dphi, ddphi) = self.penalty(s);
+            e += phi;
             if request.gradient {
-                acc.add_gradient(i, &(grad_d * (-kappa * s)));
+                acc.add_gradient(i, &(grad_d * (-dphi)));
             }
             if request.hessian && !self.diag.is_empty() {
-                let mut h = grad_d * grad_d.transpose() * kappa;
+                let mut h = grad_d * grad_d.transpose() * ddphi;
                 if let Some(hd) = hess_d.filter(|_| !request.definite) {
-                    h -= hd * (kappa * s);
+                    h -= hd * dphi;
                 }
                 acc.add_block(self.diag[i], i, i, &h);
             }

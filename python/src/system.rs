@@ -61,12 +61,14 @@ enum Term {
         radius: f64,
         stiffness: f64,
         margin: f64,
+        smoothing: f64,
     },
     Plane {
         point: [f64; 3],
         normal: [f64; 3],
         stiffness: f64,
         margin: f64,
+        smoothing: f64,
     },
 }
 
@@ -116,6 +118,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             radius,
             stiffness,
             margin,
+            smoothing,
         } => Box::new(
             Contact::new(
                 n,
@@ -126,6 +129,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
                 *stiffness,
                 *margin,
             )
+            .and_then(|c| c.with_smoothing(*smoothing))
             .map_err(e)?,
         ),
         Term::Plane {
@@ -133,6 +137,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             normal,
             stiffness,
             margin,
+            smoothing,
         } => Box::new(
             Contact::new(
                 n,
@@ -143,6 +148,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
                 *stiffness,
                 *margin,
             )
+            .and_then(|c| c.with_smoothing(*smoothing))
             .map_err(e)?,
         ),
     })
@@ -330,37 +336,43 @@ impl PySystem {
         self.add(Term::Drag { density, rate })
     }
 
-    /// Penalty contact with a sphere.
-    #[pyo3(signature = (center, radius, stiffness, margin=0.0))]
+    /// Penalty contact with a sphere; `smoothing` > 0 makes the penalty C² over the first `smoothing` of
+    /// the margin (0: quadratic).
+    #[pyo3(signature = (center, radius, stiffness, margin=0.0, smoothing=0.0))]
     fn add_sphere(
         &mut self,
         center: Vec<f64>,
         radius: f64,
         stiffness: f64,
         margin: f64,
+        smoothing: f64,
     ) -> PyResult<()> {
         self.add(Term::Sphere {
             center: vec3("center", center)?,
             radius,
             stiffness,
             margin,
+            smoothing,
         })
     }
 
-    /// Penalty contact with a plane (vertices pushed to the side `normal` points to).
-    #[pyo3(signature = (point, normal, stiffness, margin=0.0))]
+    /// Penalty contact with a plane (vertices pushed to the side `normal` points to); `smoothing` as for
+    /// `add_sphere`.
+    #[pyo3(signature = (point, normal, stiffness, margin=0.0, smoothing=0.0))]
     fn add_plane(
         &mut self,
         point: Vec<f64>,
         normal: Vec<f64>,
         stiffness: f64,
         margin: f64,
+        smoothing: f64,
     ) -> PyResult<()> {
         self.add(Term::Plane {
             point: vec3("point", point)?,
             normal: vec3("normal", normal)?,
             stiffness,
             margin,
+            smoothing,
         })
     }
 

@@ -521,3 +521,38 @@ def test_fit_scene_recovers_young_s_modulus(tmp_path):
         hinge.fit_scene(str(wrong), T[:-1], ["material.young"])
     with pytest.raises(ValueError, match="mesh file path"):
         hinge.fit_scene(str(wrong), 3, ["material.young"])
+
+
+def test_smoothed_contact_is_c2_matches_finite_differences_and_rejects_bad_lengths():
+    V, F = sheet(4, 4, 12, jitter=0.05)
+    delta, eps, kappa = 0.05, 0.03, 300.0
+    # Vertices at depths past ε, inside (0, ε) and outside the margin of the plane z = 0.
+    X = V.copy()
+    X[:, 2] = np.linspace(-0.02, 0.08, len(V))
+    s = hinge.System(V, F).add_plane((0, 0, 0), (0, 0, 1), kappa, margin=delta, smoothing=eps)
+    q = hinge.System(V, F).add_plane((0, 0, 0), (0, 0, 1), kappa, margin=delta)
+    z = hinge.System(V, F).add_plane((0, 0, 0), (0, 0, 1), kappa, margin=delta, smoothing=0.0)
+    e, g, H = s.evaluate(X)
+    # The penalty written out here, per vertex of penetration p = δ − z.
+    p = delta - X[:, 2]
+    phi = np.where(p >= eps, 0.5 * kappa * (p * p - eps * p + eps * eps / 3),
+                   np.where(p > 0, kappa * p**3 / (6 * eps), 0.0))
+    assert (p > eps).any() and ((p > 0) & (p < eps)).any() and (p < 0).any()
+    assert abs(e - phi.sum()) <= 1e-12 * phi.sum()
+    h = 1e-7
+    for i in range(len(V)):
+        Xp, Xm = X.copy(), X.copy()
+        Xp[i, 2] += h
+        Xm[i, 2] -= h
+        ep, gp = s.evaluate(Xp, hessian=False)
+        em, gm = s.evaluate(Xm, hessian=False)
+        assert abs((ep - em) / (2 * h) - g[3 * i + 2]) <= 1e-6 * kappa * delta
+        assert abs((gp[3 * i + 2] - gm[3 * i + 2]) / (2 * h) - H[3 * i + 2, 3 * i + 2]) <= 1e-5 * kappa
+    # Smoothing 0 is the quadratic penalty, bitwise; it differs from the smoothed one.
+    eq, gq, Hq = q.evaluate(X)
+    ez, gz, Hz = z.evaluate(X)
+    assert eq == ez and np.array_equal(gq, gz) and (Hq != Hz).nnz == 0
+    assert e < eq
+    for bad in (-1e-3, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="smoothing"):
+            hinge.System(V, F).add_sphere((0, 0, -1), 0.9, kappa, margin=delta, smoothing=bad)

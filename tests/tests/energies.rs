@@ -139,6 +139,40 @@ fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
             ),
             false,
         ),
+        (
+            "contact-sphere-smoothed",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Sphere {
+                        center: Vector3::new(0.5, 0.4, -0.8),
+                        radius: 0.9,
+                    },
+                    300.0,
+                    0.05,
+                )
+                .and_then(|c| c.with_smoothing(0.03))
+                .unwrap(),
+            ),
+            false,
+        ),
+        (
+            "contact-plane-smoothed",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Plane {
+                        point: Vector3::new(0.0, 0.0, 0.05),
+                        normal: Vector3::new(0.1, 0.0, 1.0),
+                    },
+                    300.0,
+                    0.02,
+                )
+                .and_then(|c| c.with_smoothing(0.01))
+                .unwrap(),
+            ),
+            false,
+        ),
     ]
 }
 
@@ -580,6 +614,59 @@ mod autodiff_oracle {
         compare("contact-sphere", closed_form(Box::new(contact), &def), ad);
     }
 
+    /// The C² (smoothed) contact penalty against num-dual, with one vertex in the cubic part of the margin,
+    /// one past the smoothing length and one outside.
+    #[test]
+    fn smoothed_contact_matches_num_dual_in_both_branches() {
+        let def = vec![
+            Vector3::new(0.05, -0.02, 0.1),
+            Vector3::new(1.1, 0.2, -0.1),
+            Vector3::new(0.1, 1.0, 0.2),
+        ];
+        let x = flat::<9>(&def);
+        let (c, r, kappa, delta, eps) = (Vector3::new(0.3, 0.3, -0.8), 1.0, 50.0, 0.1, 0.06);
+        let contact = Contact::new(
+            3,
+            Obstacle::Sphere {
+                center: c,
+                radius: r,
+            },
+            kappa,
+            delta,
+        )
+        .and_then(|k| k.with_smoothing(eps))
+        .unwrap();
+        // The penetrations s = δ − d: past ε, inside (0, ε), outside.
+        let s: Vec<f64> = def.iter().map(|p| delta - contact.distance(p)).collect();
+        assert!(
+            s[0] > eps && s[1] > 0.0 && s[1] < eps && s[2] < 0.0,
+            "{s:?}"
+        );
+        let ad = hessian(
+            |v: SVector<Dual2SVec64<9>, 9>| {
+                let sl = v.as_slice();
+                let mut e = Dual2SVec64::<9>::from(0.0);
+                for i in 0..3 {
+                    let p = v3(sl, i);
+                    let d = norm([p[0] - c.x, p[1] - c.y, p[2] - c.z]) - r;
+                    let gap = -d + delta;
+                    if gap.re >= eps {
+                        e += (gap * gap - gap * eps + eps * eps / 3.0) * (0.5 * kappa);
+                    } else if gap.re > 0.0 {
+                        e += gap * gap * gap * (kappa / (6.0 * eps));
+                    }
+                }
+                e
+            },
+            &x,
+        );
+        compare(
+            "contact-sphere-smoothed",
+            closed_form(Box::new(contact), &def),
+            ad,
+        );
+    }
+
     #[test]
     fn drag_matches_num_dual_and_finite_differences() {
         use hinge_energies::drag::Drag;
@@ -764,4 +851,66 @@ fn cylinder_patch_test_gives_three_times_the_plate_energy() {
     assert!(cylinder_ratio(&fwd, std::f64::consts::FRAC_PI_4) > 6.0);
     let k = plate_consistent_stiffness(7e10, 2e-3, 0.3);
     assert!((3.0 * k / stiffness_from_material(7e10, 2e-3, 0.3) - 1.0).abs() < 1e-15);
+}
+
+/// The smoothed contact penalty: its closed forms against the integrals of its second derivative (trapezoid
+/// rule on a fine grid, a node at ε), continuous value, slope and curvature at both ends of the smoothing
+/// length, the quadratic penalty bitwise for ε = 0 and shifted by ε/2 past ε, typed errors for bad lengths.
+#[test]
+fn smoothed_contact_penalty_is_c2_and_reduces_to_the_quadratic() {
+    let plane = Obstacle::Plane {
+        point: Vector3::zeros(),
+        normal: Vector3::z(),
+    };
+    let (kappa, delta, eps) = (40.0, 0.01, 0.004);
+    let quad = Contact::new(1, plane, kappa, delta).unwrap();
+    let smooth = quad.clone().with_smoothing(eps).unwrap();
+    assert_eq!(smooth.smoothing(), eps);
+    // φ′(s) = ∫₀ˢ φ″, φ(s) = ∫₀ˢ φ′ (nested trapezoid sums; φ″ is piecewise linear with a kink at ε,
+    // which is a grid node, so the inner rule is exact up to rounding and the outer one is O(h²)).
+    let n = 20_000;
+    let h = 2.0 * delta / n as f64;
+    let (mut d1, mut d0, mut prev2, mut prev1) = (0.0, 0.0, 0.0, 0.0);
+    for k in 1..=n {
+        let s = k as f64 * h;
+        let (phi, dphi, ddphi) = smooth.penalty(s);
+        d1 += 0.5 * h * (prev2 + ddphi);
+        d0 += 0.5 * h * (prev1 + d1);
+        prev2 = ddphi;
+        prev1 = d1;
+        if k % 1000 == 0 {
+            assert!(
+                (dphi - d1).abs() <= 1e-9 * kappa * delta,
+                "φ′({s}) {dphi} vs {d1}"
+            );
+            assert!(
+                (phi - d0).abs() <= 1e-6 * kappa * delta * delta,
+                "φ({s}) {phi} vs {d0}"
+            );
+        }
+    }
+    // C² at ε and at 0.
+    let (below, above) = (smooth.penalty(eps * (1.0 - 1e-12)), smooth.penalty(eps));
+    assert!((below.0 - above.0).abs() <= 1e-12 * kappa * eps * eps);
+    assert!((below.1 - above.1).abs() <= 1e-10 * kappa * eps);
+    assert!((below.2 - above.2).abs() <= 1e-10 * kappa);
+    let tiny = smooth.penalty(1e-12);
+    assert!(tiny.0 < 1e-30 && tiny.1 < 1e-18 && tiny.2 < 1e-6);
+    assert_eq!(smooth.penalty(0.0), (0.0, 0.0, 0.0));
+    assert_eq!(smooth.penalty(-1e-3), (0.0, 0.0, 0.0));
+    // ε = 0 is the quadratic penalty, bitwise; past ε the slope is the quadratic's at s − ε/2.
+    let zero = quad.clone().with_smoothing(0.0).unwrap();
+    for s in [1e-9, 1e-4, 3e-3, 0.02, 1.5] {
+        assert_eq!(zero.penalty(s), quad.penalty(s));
+        assert_eq!(quad.penalty(s), (0.5 * kappa * s * s, kappa * s, kappa));
+        if s >= eps {
+            let shifted = quad.penalty(s - 0.5 * eps);
+            assert!((smooth.penalty(s).1 - shifted.1).abs() <= 1e-12 * kappa * s);
+            assert_eq!(smooth.penalty(s).2, kappa);
+        }
+    }
+    for bad in [-1e-3, f64::NAN, f64::INFINITY] {
+        let err = quad.clone().with_smoothing(bad).unwrap_err().to_string();
+        assert!(err.contains("smoothing"), "{err}");
+    }
 }

@@ -1126,3 +1126,77 @@ fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
     assert_eq!(x, x0);
     assert_eq!(sys.parameter("membrane.young").unwrap(), vec![1e10]);
 }
+
+/// [`NewtonParams::remember_shift`]: a second solve of the same indefinite problem starts its shift ladder
+/// near the shift the first one needed (fewer factorizations) and reaches the same equilibrium; switched
+/// off, every solve repeats the first one exactly (history-independent).
+#[test]
+fn remembered_shift_saves_factorizations_and_off_is_history_independent() {
+    use hinge_energies::membrane::StvkMembrane;
+    // As in `both_globalizations_reach_the_same_equilibrium`: an irregular, renumbered sheet clamped along
+    // one side, started compressed and rippled (its exact Hessian is indefinite at first).
+    let rest = hinge_core::shapes::irregular_sheet(7, 7, 4).unwrap();
+    let n = rest.n_vertices();
+    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].x <= 1e-12).collect();
+    let start: Vec<_> = rest
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(0.9 * p.x, p.y, 0.05 * (4.0 * p.y).sin() * p.x))
+        .collect();
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
+        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    let mut sys = System::new(n, terms).unwrap();
+    let pins = Pins::new(n, pinned).unwrap();
+    let mut solve_twice = |remember: bool| {
+        let params = NewtonParams {
+            gradient_tolerance: 1e-9,
+            max_iterations: 500,
+            remember_shift: remember,
+            ..NewtonParams::default()
+        };
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let mut runs = Vec::new();
+        for _ in 0..2 {
+            let mut x = start.clone();
+            let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+            assert!(stats.gradient_norms.last().unwrap() <= &1e-9);
+            assert!(
+                stats.max_shift > 0.0,
+                "the Hessian never needed a shift: no test"
+            );
+            runs.push((x, stats));
+        }
+        runs
+    };
+    let off = solve_twice(false);
+    assert_eq!(
+        off[0].0, off[1].0,
+        "history-dependent without remember_shift"
+    );
+    assert_eq!(off[0].1.factorizations, off[1].1.factorizations);
+    let on = solve_twice(true);
+    // The first solve with the memory also remembers within the solve; the second starts near its shift.
+    println!(
+        "factorizations: off {} / {}, on {} / {}",
+        off[0].1.factorizations,
+        off[1].1.factorizations,
+        on[0].1.factorizations,
+        on[1].1.factorizations
+    );
+    assert!(on[1].1.factorizations < on[0].1.factorizations);
+    for (x, _) in &on {
+        let d = x
+            .iter()
+            .zip(&off[0].0)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(d <= 1e-6, "different equilibria: {d:e}");
+    }
+}

@@ -196,13 +196,18 @@ class System:
         self._s.add_drag(float(density), float(rate))
         return self
 
-    def add_sphere(self, center, radius, stiffness, margin=0.0):
-        self._s.add_sphere([float(c) for c in center], float(radius), float(stiffness), float(margin))
+    def add_sphere(self, center, radius, stiffness, margin=0.0, smoothing=0.0):
+        """Penalty contact with a sphere; ``smoothing`` > 0 (a length) makes the penalty C² over the first
+        ``smoothing`` of penetration into the margin (0: the quadratic penalty)."""
+        self._s.add_sphere([float(c) for c in center], float(radius), float(stiffness), float(margin),
+                           float(smoothing))
         return self
 
-    def add_plane(self, point, normal, stiffness, margin=0.0):
+    def add_plane(self, point, normal, stiffness, margin=0.0, smoothing=0.0):
+        """Penalty contact with a plane (vertices pushed to the side ``normal`` points to); ``smoothing`` as
+        for ``add_sphere``."""
         self._s.add_plane([float(c) for c in point], [float(c) for c in normal], float(stiffness),
-                          float(margin))
+                          float(margin), float(smoothing))
         return self
 
     def pin(self, vertices):
