@@ -271,6 +271,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         relative_step_tolerance: scene.solver.relative_step_tolerance.unwrap_or(0.0),
         length_scale: mean_edge_length(rest),
         extrapolate: scene.solver.extrapolate,
+        remember_shift: scene.solver.remember_shift,
         ..NewtonParams::default()
     };
     let solver = linear_solver(scene);

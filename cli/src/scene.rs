@@ -411,6 +411,11 @@ pub struct SolverSpec {
     /// potential decreases (default true; false gives the Newton path of versions before it).
     #[serde(default = "default_extrapolate")]
     pub extrapolate: bool,
+    /// Start the shift ladder near the last shift that factored, in this step or an earlier one (default
+    /// true; false: every step climbs it from the smallest shift, as versions before it did; see
+    /// `hinge_solver::newton::NewtonParams::remember_shift`).
+    #[serde(default = "default_remember_shift")]
+    pub remember_shift: bool,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
     /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
     #[serde(default = "default_membrane_continuation")]
@@ -438,6 +443,10 @@ fn default_extrapolate() -> bool {
 }
 
 fn default_membrane_continuation() -> bool {
+    true
+}
+
+fn default_remember_shift() -> bool {
     true
 }
 
@@ -470,6 +479,7 @@ impl Default for SolverSpec {
             relative_gradient_tolerance: None,
             relative_step_tolerance: None,
             extrapolate: default_extrapolate(),
+            remember_shift: default_remember_shift(),
             membrane_continuation: default_membrane_continuation(),
             integrator: default_integrator(),
             substeps: default_substeps(),

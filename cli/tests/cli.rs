@@ -930,6 +930,41 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
         summary["definite_iterations"].as_u64().unwrap() > 0,
         "{summary}"
     );
+    // `remember_shift = false`: every step climbs the shift ladder from the smallest shift again, so the
+    // default (remembering) needs fewer factorizations; both converge every step.
+    let shown = String::from_utf8(hinge(&["scenes", "show", "drape"]).stdout).unwrap();
+    let forget = dir.join("forget.toml");
+    std::fs::write(
+        &forget,
+        shown.replace(
+            "gradient_tolerance = 1e-6",
+            "gradient_tolerance = 1e-6\nremember_shift = false",
+        ),
+    )
+    .unwrap();
+    let args = ["--frames", "30", "--resolution", "12"];
+    let runs: Vec<serde_json::Value> = [forget.to_str().unwrap(), "drape"]
+        .iter()
+        .enumerate()
+        .map(|(k, scene)| {
+            let mut all = vec![*scene];
+            all.extend_from_slice(&args);
+            run_summary(&dir.join(format!("shift{k}")), &all)
+        })
+        .collect();
+    println!(
+        "factorizations: without the shift memory {}, with {}",
+        runs[0]["factorizations"], runs[1]["factorizations"]
+    );
+    for r in &runs {
+        assert!(
+            r["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
+            "{r}"
+        );
+    }
+    assert!(
+        runs[1]["factorizations"].as_u64().unwrap() < runs[0]["factorizations"].as_u64().unwrap()
+    );
 }
 
 /// `hinge eval --psi`: the derive's text of a built-in gives the built-in's files byte for byte; parameter
