@@ -411,7 +411,7 @@ impl PySystem {
                     corotational: true, ..
                 } => "corotational-membrane".into(),
                 Term::Membrane { .. } => "membrane".into(),
-                Term::Springs { .. } => "springs".into(),
+                Term::Springs { .. } => "mass-spring".into(),
                 Term::Gravity { .. } => "gravity".into(),
                 Term::Drag { .. } => "drag".into(),
                 Term::Sphere { .. } => "contact-sphere".into(),

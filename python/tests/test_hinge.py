@@ -238,7 +238,7 @@ def test_system_composes_energies_and_matches_its_parts():
     s = hinge.System(V, F)
     s.add_bending(energy="tan-bending", k=1e-3).add_membrane(2e5, 0.3, 5e-4).add_gravity(0.1)
     s.add_sphere((0.5, 0.5, -0.2), 0.3, 2e3, margin=5e-3).add_springs(10.0, compressive=False)
-    assert s.terms == ["tan-bending", "membrane", "gravity", "contact-sphere", "springs"]
+    assert s.terms == ["tan-bending", "membrane", "gravity", "contact-sphere", "mass-spring"]
     E, g, H = s.evaluate(X)
     Eb, gb, Hb = hinge.BendingModel(V, F, energy="tan-bending", k=1e-3).evaluate(X)
     rest = hinge.System(V, F).add_membrane(2e5, 0.3, 5e-4).add_gravity(0.1)
