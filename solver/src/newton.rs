@@ -445,7 +445,7 @@ pub struct Newton {
     values: Vec<f64>,
     /// `values` plus the diagonal shift being tried (reused: no allocation per factorization).
     shifted: Vec<f64>,
-    /// The last positive shift that factored (in this solve or an earlier one): the shift ladder starts
+    /// The last positive shift the ladder found (in this solve or an earlier one): the next ladder starts
     /// near it.
     ladder_hint: f64,
     out: Option<SystemEvaluation>,
@@ -714,7 +714,9 @@ impl Newton {
             s.stats.factorizations += 1;
             match r {
                 Ok(()) => {
-                    if *shift > 0.0 && p.remember_shift {
+                    // Remember shifts the ladder found, not a Levenberg–Marquardt damping (which can be
+                    // orders of magnitude larger, for one iteration's line search).
+                    if *shift > damping && p.remember_shift {
                         self.ladder_hint = *shift;
                     }
                     return Ok(Factored {
