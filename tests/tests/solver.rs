@@ -767,12 +767,12 @@ fn definite_requests_give_psd_hessians_with_exact_energy_and_gradient() {
     assert!(rel_error(&a.hessian, &b.hessian) <= 1e-15);
 }
 
-#[test]
-fn both_globalizations_reach_the_same_equilibrium() {
+/// A sheet clamped along one side (x = 0), sagging under gravity from a compressed, rippled start whose
+/// exact Hessian is indefinite in the first iterations: an irregular sheet (random diagonals, jitter, random
+/// numbering, rotated corners) with bending, an StVK membrane and gravity. Returns the system, its pins and
+/// the start.
+fn compressed_clamped_sheet() -> (System, Pins, Vec<Vector3<f64>>) {
     use hinge_energies::membrane::StvkMembrane;
-    use hinge_solver::newton::Globalization;
-    // A sheet clamped along one side, sagging under gravity from a compressed start: the exact Hessian is
-    // indefinite in the first iterations.
     let rest = hinge_core::shapes::irregular_sheet(7, 7, 4).unwrap();
     let n = rest.n_vertices();
     let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].x <= 1e-12).collect();
@@ -782,29 +782,36 @@ fn both_globalizations_reach_the_same_equilibrium() {
         .iter()
         .map(|p| Vector3::new(0.9 * p.x, p.y, 0.05 * (4.0 * p.y).sin() * p.x))
         .collect();
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
+            Method::Refactored,
+        )),
+        Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
+        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
+    ];
+    (
+        System::new(n, terms).unwrap(),
+        Pins::new(n, pinned).unwrap(),
+        start,
+    )
+}
+
+#[test]
+fn both_globalizations_reach_the_same_equilibrium() {
+    use hinge_solver::newton::Globalization;
     let mut results = Vec::new();
     for g in [Globalization::ShiftedExact, Globalization::ProjectOnDemand] {
-        let terms: Vec<Box<dyn Energy>> = vec![
-            Box::new(HingeTerm::new(
-                "bending",
-                BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
-                Method::Refactored,
-            )),
-            Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
-            Box::new(
-                Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
-            ),
-        ];
-        let mut sys = System::new(n, terms).unwrap();
+        let (mut sys, pins, start) = compressed_clamped_sheet();
         let params = NewtonParams {
             gradient_tolerance: 1e-9,
             max_iterations: 500,
             globalization: g,
             ..NewtonParams::default()
         };
-        let pins = Pins::new(n, pinned.clone()).unwrap();
         let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
-        let mut x = start.clone();
+        let mut x = start;
         let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
         println!(
             "{g:?}: {} iterations, {} factorizations, {} definite",
@@ -829,16 +836,7 @@ fn both_globalizations_reach_the_same_equilibrium() {
     assert!(d <= 1e-6, "different equilibria: {d:e}");
     // The unit-free gradient test stops the same solve early: at a millionth of the start's gradient, with
     // the absolute tolerances switched off.
-    let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(HingeTerm::new(
-            "bending",
-            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
-            Method::Refactored,
-        )),
-        Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
-        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
-    ];
-    let mut sys = System::new(n, terms).unwrap();
+    let (mut sys, pins, start) = compressed_clamped_sheet();
     let params = NewtonParams {
         gradient_tolerance: 0.0,
         step_tolerance: 0.0,
@@ -846,9 +844,8 @@ fn both_globalizations_reach_the_same_equilibrium() {
         max_iterations: 500,
         ..NewtonParams::default()
     };
-    let pins = Pins::new(n, pinned.clone()).unwrap();
     let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
-    let mut x = start.clone();
+    let mut x = start;
     let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
     let g = &stats.gradient_norms;
     let (first, last) = (g[0], *g.last().unwrap());
@@ -1132,28 +1129,7 @@ fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
 /// off, every solve repeats the first one exactly (history-independent).
 #[test]
 fn remembered_shift_saves_factorizations_and_off_is_history_independent() {
-    use hinge_energies::membrane::StvkMembrane;
-    // As in `both_globalizations_reach_the_same_equilibrium`: an irregular, renumbered sheet clamped along
-    // one side, started compressed and rippled (its exact Hessian is indefinite at first).
-    let rest = hinge_core::shapes::irregular_sheet(7, 7, 4).unwrap();
-    let n = rest.n_vertices();
-    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].x <= 1e-12).collect();
-    let start: Vec<_> = rest
-        .positions()
-        .iter()
-        .map(|p| Vector3::new(0.9 * p.x, p.y, 0.05 * (4.0 * p.y).sin() * p.x))
-        .collect();
-    let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(HingeTerm::new(
-            "bending",
-            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
-            Method::Refactored,
-        )),
-        Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
-        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
-    ];
-    let mut sys = System::new(n, terms).unwrap();
-    let pins = Pins::new(n, pinned).unwrap();
+    let (mut sys, pins, start) = compressed_clamped_sheet();
     let mut solve_twice = |remember: bool| {
         let params = NewtonParams {
             gradient_tolerance: 1e-9,
