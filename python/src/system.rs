@@ -21,7 +21,7 @@ use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
-use hinge_solver::statics::{membrane_scales, minimize_continued};
+use hinge_solver::statics::{mean_edge_length, membrane_scales, minimize_continued};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
 };
@@ -500,40 +500,65 @@ impl PySystem {
     }
 }
 
-/// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name, and
-/// [`NewtonParams::extrapolate`].
-fn newton_params(
+/// Newton's settings from Python (the keyword arguments `solve_static` and `ImplicitEuler` share).
+#[derive(Debug, Clone, Copy)]
+struct PyNewtonOptions<'a> {
     max_iterations: usize,
     gradient_tolerance: f64,
-    globalization: &str,
+    globalization: &'a str,
     extrapolate: bool,
-) -> PyResult<NewtonParams> {
-    if max_iterations == 0 || !(gradient_tolerance > 0.0 && gradient_tolerance.is_finite()) {
+    relative_gradient_tolerance: f64,
+    relative_step_tolerance: f64,
+    remember_shift: bool,
+}
+
+/// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name,
+/// [`NewtonParams::extrapolate`], the unit-free stopping tests (the step test against the rest mesh's mean
+/// edge length, as the CLI does) and [`NewtonParams::remember_shift`].
+fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParams> {
+    if o.max_iterations == 0 || !(o.gradient_tolerance > 0.0 && o.gradient_tolerance.is_finite()) {
         return Err(value_error(format!(
-            "max_iterations must be ≥ 1 and gradient_tolerance positive and finite (got {max_iterations}, {gradient_tolerance})"
+            "max_iterations must be ≥ 1 and gradient_tolerance positive and finite (got {}, {})",
+            o.max_iterations, o.gradient_tolerance
         )));
     }
-    let globalization = Globalization::from_name(globalization).ok_or_else(|| {
+    for (name, v) in [
+        ("relative_gradient_tolerance", o.relative_gradient_tolerance),
+        ("relative_step_tolerance", o.relative_step_tolerance),
+    ] {
+        if !(v >= 0.0 && v.is_finite()) {
+            return Err(value_error(format!(
+                "{name} must be finite and ≥ 0 (0: off), got {v}"
+            )));
+        }
+    }
+    let globalization = Globalization::from_name(o.globalization).ok_or_else(|| {
         value_error(format!(
-            "globalization must be \"shifted-exact\" or \"project-on-demand\", got {globalization:?}"
+            "globalization must be \"shifted-exact\" or \"project-on-demand\", got {:?}",
+            o.globalization
         ))
     })?;
     Ok(NewtonParams {
-        max_iterations,
-        gradient_tolerance,
+        max_iterations: o.max_iterations,
+        gradient_tolerance: o.gradient_tolerance,
         globalization,
-        extrapolate,
+        extrapolate: o.extrapolate,
+        relative_gradient_tolerance: o.relative_gradient_tolerance,
+        relative_step_tolerance: o.relative_step_tolerance,
+        length_scale: mean_edge_length(rest),
+        remember_shift: o.remember_shift,
         ..NewtonParams::default()
     })
 }
 
 /// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
-/// extrapolate=True, membrane_continuation=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices held
-/// at their `X0` positions) by Newton, through softer StVK membranes first when
+/// extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
+/// relative_step_tolerance=0.0, remember_shift=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices
+/// held at their `X0` positions) by Newton, through softer StVK membranes first when
 /// [`hinge_solver::statics::membrane_scales`] asks for it and `membrane_continuation` is set. Returns
 /// `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
 #[pyfunction]
-#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true))]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true))]
 #[allow(clippy::too_many_arguments)]
 pub fn solve_static<'py>(
     py: Python<'py>,
@@ -544,13 +569,22 @@ pub fn solve_static<'py>(
     globalization: &str,
     extrapolate: bool,
     membrane_continuation: bool,
+    relative_gradient_tolerance: f64,
+    relative_step_tolerance: f64,
+    remember_shift: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let params = newton_params(
-        max_iterations,
-        gradient_tolerance,
-        globalization,
-        extrapolate,
+        PyNewtonOptions {
+            max_iterations,
+            gradient_tolerance,
+            globalization,
+            extrapolate,
+            relative_gradient_tolerance,
+            relative_step_tolerance,
+            remember_shift,
+        },
+        &system.rest,
     )?;
     let pins = system.pins()?;
     system.ensure(py)?;
@@ -599,10 +633,10 @@ impl PyStepper {
 #[pymethods]
 impl PyStepper {
     /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
-    /// `density`; the system's current terms and pins are copied. `globalization` and `extrapolate` as in
-    /// `solve_static`.
+    /// `density`; the system's current terms and pins are copied. `globalization`, `extrapolate`, the
+    /// relative tolerances and `remember_shift` as in `solve_static`.
     #[new]
-    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true))]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -615,6 +649,9 @@ impl PyStepper {
         gradient_tolerance: f64,
         globalization: &str,
         extrapolate: bool,
+        relative_gradient_tolerance: f64,
+        relative_step_tolerance: f64,
+        remember_shift: bool,
     ) -> PyResult<Self> {
         let x = system.positions(&x0)?;
         let v = match v0 {
@@ -627,10 +664,16 @@ impl PyStepper {
             )));
         }
         let params = newton_params(
-            max_iterations,
-            gradient_tolerance,
-            globalization,
-            extrapolate,
+            PyNewtonOptions {
+                max_iterations,
+                gradient_tolerance,
+                globalization,
+                extrapolate,
+                relative_gradient_tolerance,
+                relative_step_tolerance,
+                remember_shift,
+            },
+            &system.rest,
         )?;
         let pins = system.pins()?;
         let sys = py.detach(|| system.build()).map_err(value_error)?;
@@ -843,7 +886,18 @@ pub fn fit<'py>(
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
-    let params = newton_params(500, gradient_tolerance, "shifted-exact", true)?;
+    let params = newton_params(
+        PyNewtonOptions {
+            max_iterations: 500,
+            gradient_tolerance,
+            globalization: "shifted-exact",
+            extrapolate: true,
+            relative_gradient_tolerance: 0.0,
+            relative_step_tolerance: 0.0,
+            remember_shift: true,
+        },
+        &system.rest,
+    )?;
     let pins = system.pins()?;
     let sys = system.system(py)?;
     let mut variables = Vec::new();

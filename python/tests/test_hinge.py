@@ -302,6 +302,60 @@ def test_newton_globalization_and_extrapolation_switches():
     assert st["final_gradient_norm"] <= 1e-8 and "definite_iterations" in st
 
 
+def test_unit_free_stopping_tests_and_shift_memory_from_python():
+    V, F, s, clamp = clamped_sheet(31, 1e-3, 1e5)
+    X0 = V.copy()
+    X0[:, 0] *= 0.85
+    X0[:, 2] += 1e-4 * np.sin(np.pi * V[:, 0] / 0.3)
+    opts = dict(gradient_tolerance=1e-11, membrane_continuation=False)
+    Xa, sa = hinge.solve_static(s, X0, **opts)
+    # The relative gradient test ends the solve once the gradient fell 1e4-fold from its start.
+    Xr, sr = hinge.solve_static(s, X0, relative_gradient_tolerance=1e-4, **opts)
+    g0 = sr["gradient_norms"][0]
+    assert g0 == sa["gradient_norms"][0]
+    assert sr["final_gradient_norm"] <= 1e-4 * g0
+    assert all(g > 1e-4 * g0 for g in sr["gradient_norms"][:-1])
+    assert sr["newton_iterations"] < sa["newton_iterations"]
+    # The relative step test: stop after an exact Newton step that moved no vertex farther than 1e-3 mean
+    # edge lengths; that is before the absolute gradient test.
+    Xs, ss = hinge.solve_static(s, X0, relative_step_tolerance=1e-3, **opts)
+    assert ss["newton_iterations"] < sa["newton_iterations"]
+    free = np.setdiff1d(np.arange(len(V)), clamp)
+    edge = np.mean([np.linalg.norm(V[a] - V[b]) for f in F for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))])
+    # Near the solution the last step is the error of the iterate before it: the end is within a small
+    # multiple of the tolerance of the tightly converged equilibrium.
+    assert np.abs(Xs - Xa)[free].max() <= 1e-3 * edge
+    # The shift memory acts across the stages of the membrane continuation (one Newton for all of them): on
+    # a stiffer, thinner sheet it changes the path, not the equilibrium.
+    V2, _, s2, _ = clamped_sheet(31, 1e-5, 1e7)
+    Y0 = V2.copy()
+    Y0[:, 0] *= 0.85
+    Y0[:, 2] += 1e-4 * np.sin(np.pi * V2[:, 0] / 0.3)
+    paths = {}
+    for remember in (True, False):
+        Y, st = hinge.solve_static(s2, Y0, gradient_tolerance=1e-9, remember_shift=remember)
+        assert st["final_gradient_norm"] <= 1e-9
+        paths[remember] = (st["newton_iterations"], st["factorizations"])
+    assert paths[True] != paths[False], paths
+    # The stepper takes the same keyword arguments; without the shift memory it repeats itself exactly.
+    runs = []
+    for _ in range(2):
+        t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, gradient_tolerance=1e-9, remember_shift=False)
+        steps = [t.step() for _ in range(2)]
+        assert all(st["final_gradient_norm"] <= 1e-9 for _, st in steps)
+        runs.append((steps[-1][0], [st["factorizations"] for _, st in steps]))
+    assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
+    t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, relative_gradient_tolerance=1e-3, gradient_tolerance=1e-12)
+    X, st = t.step()
+    assert st["final_gradient_norm"] <= 1e-3 * st["gradient_norms"][0]
+    for bad in ({"relative_gradient_tolerance": -1.0}, {"relative_step_tolerance": float("nan")},
+                {"relative_gradient_tolerance": "1e-3"}, {"remember_shift": 1}):
+        with pytest.raises(ValueError):
+            hinge.solve_static(s, X0, **bad)
+        with pytest.raises(ValueError):
+            hinge.ImplicitEuler(s, V, 0.01, 0.1, **bad)
+
+
 def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations():
     # A 0.3 m × 1.25 cm strip, 0.1 mm thick, Y = 1e10 Pa, clamped at one end, bends down by half its length
     # under its own weight: the stiff membrane makes plain Newton slow (179 iterations against 25).

@@ -261,7 +261,8 @@ class System:
 
 
 def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
-                 extrapolate=True, membrane_continuation=True):
+                 extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
+                 relative_step_tolerance=0.0, remember_shift=True):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
     system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``final_gradient_norm``,
@@ -271,16 +272,32 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     ``solver.globalization`` and ``solver.extrapolate``). With ``membrane_continuation`` (as the scene key
     ``solver.membrane_continuation``), a thin shell's StVK membrane is first softened to about the inverse of
     its membrane/bending stiffness ratio and raised back in stages, each a Newton solve from the last (all
-    counted in the stats): thin stiff strips then take tens of iterations instead of hundreds."""
+    counted in the stats): thin stiff strips then take tens of iterations instead of hundreds.
+
+    Unit-free stopping tests, off (0) by default, as the scene keys of the same names: a solve also stops
+    when the gradient norm is at most ``relative_gradient_tolerance`` times its norm at the start, or after
+    an exact Newton step that moved no vertex farther than ``relative_step_tolerance`` times the rest mesh's
+    mean edge length. ``remember_shift`` (the scene key ``solver.remember_shift``) starts each diagonal-shift
+    ladder near the last shift that factored, in this solve or (for a stepper) an earlier step; ``False``
+    makes every solve independent of the ones before it."""
     return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance),
                                _globalization(globalization), _flag("extrapolate", extrapolate),
-                               _flag("membrane_continuation", membrane_continuation))
+                               _flag("membrane_continuation", membrane_continuation),
+                               _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
+                               _tolerance("relative_step_tolerance", relative_step_tolerance),
+                               _flag("remember_shift", remember_shift))
 
 
 def _globalization(name):
     if name not in ("shifted-exact", "project-on-demand"):
         raise ValueError(f'globalization must be "shifted-exact" or "project-on-demand", got {name!r}')
     return name
+
+
+def _tolerance(name, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float, _np.floating, _np.integer)):
+        raise ValueError(f"{name} must be a number (0: off), got {value!r}")
+    return float(value)
 
 
 def _flag(name, value):
@@ -326,15 +343,21 @@ def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
 class ImplicitEuler:
     """Implicit Euler on a system: ``stepper = hinge.ImplicitEuler(system, X0, dt, density)``, then
     ``X, stats = stepper.step()`` per frame (a failing step is retried in substeps; a frame that cannot be
-    taken raises ``ValueError`` and leaves positions, velocities and time as they were). ``globalization``
-    and ``extrapolate`` as in ``solve_static``."""
+    taken raises ``ValueError`` and leaves positions, velocities and time as they were). ``globalization``,
+    ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance`` and ``remember_shift`` as in
+    ``solve_static`` (the relative gradient test is against the gradient at the step's start, the inertial
+    prediction)."""
 
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
-                 globalization="shifted-exact", extrapolate=True):
+                 globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
+                 relative_step_tolerance=0.0, remember_shift=True):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), float(dt), float(density), V0,
                                        int(max_iterations), float(gradient_tolerance),
-                                       _globalization(globalization), _flag("extrapolate", extrapolate))
+                                       _globalization(globalization), _flag("extrapolate", extrapolate),
+                                       _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
+                                       _tolerance("relative_step_tolerance", relative_step_tolerance),
+                                       _flag("remember_shift", remember_shift))
 
     def step(self):
         return self._t.step()
