@@ -21,6 +21,7 @@ use hinge_core::TriMesh;
 use hinge_core::nalgebra::Vector3;
 use hinge_solver::adjoint::{Fit, FitOptions, FitVariable, Link, TargetLoss};
 use hinge_solver::newton::{Newton, NewtonParams};
+use hinge_solver::statics::minimize_continued;
 
 use crate::run::{Built, STATIC_ITERATIONS, build};
 use crate::scene::Scene;
@@ -69,6 +70,9 @@ pub struct Fitted {
     pub iterations: usize,
     /// Equilibrium solves, line-search trials included.
     pub equilibria: usize,
+    /// Newton iterations in all: the first equilibrium (through the membrane continuation when the scene
+    /// asks for it) and every solve of the fit.
+    pub newton_iterations: usize,
     /// The fitted equilibrium.
     pub x: Vec<Vector3<f64>>,
     /// Why the fit stopped.
@@ -77,7 +81,7 @@ pub struct Fitted {
 
 impl Fitted {
     /// The JSON `hinge fit` prints: `{"fitted": {KEY: value or [values]}, "loss", "iterations",
-    /// "equilibria"}`.
+    /// "equilibria", "newton_iterations"}`.
     pub fn json(&self) -> serde_json::Value {
         let fitted: serde_json::Map<String, serde_json::Value> = self
             .values
@@ -96,6 +100,7 @@ impl Fitted {
             "loss": self.loss,
             "iterations": self.iterations,
             "equilibria": self.equilibria,
+            "newton_iterations": self.newton_iterations,
         })
     }
 }
@@ -297,6 +302,18 @@ pub fn fit_scene(
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let loss = TargetLoss::all(target.positions().to_vec());
     let mut x = rest.positions().to_vec();
+    // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
+    // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
+    // A failure leaves `x` at rest; the fit's own first solve then reports what goes wrong.
+    let stages = crate::run::membrane_stages(scene, rest, &mut system)?;
+    let start_iterations = if stages.is_empty() {
+        0
+    } else {
+        match minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages) {
+            Ok(st) => st.iterations,
+            Err(e) => e.stats().iterations,
+        }
+    };
     let mut fit =
         Fit::new(&system, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
     fit.observe(|p| {
@@ -317,6 +334,7 @@ pub fn fit_scene(
         loss: r.loss,
         iterations: r.iterations,
         equilibria: r.equilibria,
+        newton_iterations: start_iterations + r.newton_iterations,
         x: r.x,
         stop: r.stop,
     })
@@ -490,4 +508,62 @@ pub fn run(args: FitArgs) -> Result<(), String> {
     eprintln!("fit: wrote {}", dir.join("fitted.toml").display());
     println!("{}", fitted.json());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fit_scene;
+    use crate::run::{Built, STATIC_ITERATIONS, build, membrane_stages};
+    use crate::scene::load;
+    use hinge_solver::adjoint::FitOptions;
+    use hinge_solver::newton::{Newton, NewtonParams};
+    use hinge_solver::statics::minimize_continued;
+
+    #[test]
+    fn a_fit_starts_from_the_equilibrium_the_membrane_continuation_reaches() {
+        // The 0.1 mm strip of Y = 1e10 Pa of `hinge stability`'s stiff beams: its equilibrium from flat takes
+        // hundreds of Newton iterations without the continuation. Fitted back from Y = 2e10.
+        let (mut truth, _) = load("beam5").unwrap();
+        truth.material.young = 1e10;
+        truth.material.thickness = 1e-4;
+        truth.material.density = 0.1;
+        let rest = truth.rest_mesh(None).unwrap();
+        let Built {
+            mut system,
+            pins,
+            solver,
+            params,
+            ..
+        } = build(&truth, &rest, false).unwrap();
+        let params = NewtonParams {
+            max_iterations: STATIC_ITERATIONS,
+            ..params
+        };
+        let mut newton = Newton::new(&system, &pins, solver, params).unwrap();
+        let stages = membrane_stages(&truth, &rest, &mut system).unwrap();
+        assert!(!stages.is_empty());
+        let mut x = rest.positions().to_vec();
+        minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages).unwrap();
+        let target = rest.with_positions(x).unwrap();
+        let mut counts = Vec::new();
+        for on in [true, false] {
+            let mut scene = truth.clone();
+            scene.material.young = 2e10;
+            scene.solver.membrane_continuation = on;
+            let f = fit_scene(
+                &scene,
+                &rest,
+                &target,
+                "target",
+                &["material.young".to_string()],
+                FitOptions::default(),
+            )
+            .unwrap();
+            let y = f.values[0].1[0];
+            assert!((y / 1e10 - 1.0).abs() < 1e-5, "continuation {on}: Y = {y}");
+            counts.push(f.newton_iterations);
+        }
+        println!("Newton iterations of the fit with / without the continuation: {counts:?}");
+        assert!(2 * counts[0] < counts[1], "{counts:?}");
+    }
 }

@@ -474,6 +474,8 @@ pub struct FitResult {
     pub iterations: usize,
     /// Equilibrium solves, line-search trials included.
     pub equilibria: usize,
+    /// Newton iterations of those solves, summed (failed solves included).
+    pub newton_iterations: usize,
     /// The equilibrium at the fitted values.
     pub x: Vec<Vector3<f64>>,
     /// Why it stopped.
@@ -489,6 +491,7 @@ pub struct Fit<'a> {
     newton: &'a mut Newton,
     adjoint: Adjoint,
     equilibria: usize,
+    newton_iterations: usize,
     grad_l: Vec<f64>,
     /// Every linked parameter and its value when the fit was made.
     linked: Vec<(String, Vec<f64>)>,
@@ -619,6 +622,7 @@ impl<'a> Fit<'a> {
             options,
             newton,
             equilibria: 0,
+            newton_iterations: 0,
         })
     }
 
@@ -745,7 +749,13 @@ impl<'a> Fit<'a> {
         let u = self.unpack(s);
         self.apply(system, &u)?;
         self.equilibria += 1;
-        self.newton.minimize(system, x, None)?;
+        match self.newton.minimize(system, x, None) {
+            Ok(st) => self.newton_iterations += st.iterations,
+            Err(e) => {
+                self.newton_iterations += e.stats().iterations;
+                return Err(e.into());
+            }
+        }
         let l = loss(x, &mut self.grad_l)?;
         self.adjoint.factor(system, x)?;
         self.adjoint.solve(&self.grad_l)?;
@@ -984,6 +994,7 @@ impl<'a> Fit<'a> {
             initial_loss,
             iterations,
             equilibria: self.equilibria,
+            newton_iterations: self.newton_iterations,
             x: cur.x,
             stop,
         })
