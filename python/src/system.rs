@@ -845,12 +845,12 @@ pub fn adjoint_gradient<'py>(
     Ok(d)
 }
 
-/// The dict `{"fitted": …, "loss", "iterations", "equilibria", "stop"}` of a fit.
+/// The dict `{"fitted": …, "loss", "iterations", "equilibria", "newton_iterations", "stop"}` of a fit.
 fn fit_info<'py>(
     py: Python<'py>,
     names: &[String],
     values: &[Vec<f64>],
-    r: (f64, usize, usize, &str),
+    r: (f64, usize, usize, usize, &str),
 ) -> PyResult<Bound<'py, PyDict>> {
     let fitted = PyDict::new(py);
     for (n, v) in names.iter().zip(values) {
@@ -865,16 +865,20 @@ fn fit_info<'py>(
     d.set_item("loss", r.0)?;
     d.set_item("iterations", r.1)?;
     d.set_item("equilibria", r.2)?;
-    d.set_item("stop", r.3)?;
+    d.set_item("newton_iterations", r.3)?;
+    d.set_item("stop", r.4)?;
     Ok(d)
 }
 
-/// `fit(system, X0, target, parameters, max_iterations=50, smoothness=0.0)`: the named system parameters
-/// (`TERM.NAME`) that make the equilibrium match `target` (shape (n, 3); loss: the sum of squared vertex
-/// distances), by L-BFGS with adjoint gradients; a parameter whose values are all positive is fitted on a log
-/// scale. Returns `(X, info)` with `info["fitted"]` the values; the system keeps them.
+/// `fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9,
+/// membrane_continuation=True)`: the named system parameters (`TERM.NAME`) that make the equilibrium match
+/// `target` (shape (n, 3); loss: the sum of squared vertex distances), by L-BFGS with adjoint gradients; a
+/// parameter whose values are all positive is fitted on a log scale. The first equilibrium goes through the
+/// membrane continuation of `solve_static` when `membrane_continuation` is set; the fit's solves start from
+/// it. Returns `(X, info)` with `info["fitted"]` the values; the system keeps them.
 #[pyfunction]
-#[pyo3(signature = (system, x0, target, parameters, max_iterations=50, gradient_tolerance=1e-9))]
+#[pyo3(signature = (system, x0, target, parameters, max_iterations=50, gradient_tolerance=1e-9, membrane_continuation=true))]
+#[allow(clippy::too_many_arguments)]
 pub fn fit<'py>(
     py: Python<'py>,
     system: &mut PySystem,
@@ -883,9 +887,11 @@ pub fn fit<'py>(
     parameters: Vec<String>,
     max_iterations: usize,
     gradient_tolerance: f64,
+    membrane_continuation: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
+    let rest = system.rest.clone();
     let params = newton_params(
         PyNewtonOptions {
             max_iterations: 500,
@@ -927,16 +933,33 @@ pub fn fit<'py>(
         max_iterations,
         ..FitOptions::default()
     };
-    let r = py.detach(|| -> Result<FitResult, String> {
+    let r = py.detach(|| -> Result<(FitResult, usize), String> {
+        let stages = if membrane_continuation {
+            membrane_scales(sys, &rest).map_err(|e| e.to_string())?
+        } else {
+            Vec::new()
+        };
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
+        // The first equilibrium through the continuation; a failure leaves `x` as given and the fit's own
+        // first solve reports what goes wrong.
+        let start = if stages.is_empty() {
+            0
+        } else {
+            match minimize_continued(&mut newton, sys, &mut x, "membrane.young", &stages) {
+                Ok(st) => st.iterations,
+                Err(e) => e.stats().iterations,
+            }
+        };
         let loss = TargetLoss::all(target);
         let mut fit =
             Fit::new(sys, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
-        fit.run(sys, &mut x, &mut |x, g| loss.evaluate(x, g))
-            .map_err(|e| e.to_string())
+        let r = fit
+            .run(sys, &mut x, &mut |x, g| loss.evaluate(x, g))
+            .map_err(|e| e.to_string())?;
+        Ok((r, start))
     });
-    let r = r.map_err(value_error)?;
+    let (r, start) = r.map_err(value_error)?;
     for (name, v) in parameters.iter().zip(&r.values) {
         system.record(name, v.clone());
     }
@@ -944,7 +967,13 @@ pub fn fit<'py>(
         py,
         &parameters,
         &r.values,
-        (r.loss, r.iterations, r.equilibria, r.stop),
+        (
+            r.loss,
+            r.iterations,
+            r.equilibria,
+            start + r.newton_iterations,
+            r.stop,
+        ),
     )?;
     Ok((to_array(py, &r.x)?, info))
 }
@@ -1009,7 +1038,13 @@ pub fn fit_scene<'py>(
         py,
         &names,
         &values,
-        (r.loss, r.iterations, r.equilibria, r.stop),
+        (
+            r.loss,
+            r.iterations,
+            r.equilibria,
+            r.newton_iterations,
+            r.stop,
+        ),
     )?;
     Ok((to_array(py, &r.x)?, info))
 }

@@ -316,16 +316,19 @@ def adjoint_gradient(system, X, dloss_dx, parameters):
     return _hinge.adjoint_gradient(system._s, system._x(X), system._x(dloss_dx), [str(p) for p in parameters])
 
 
-def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9):
+def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9, membrane_continuation=True):
     """Fits system parameters (``TERM.NAME``, see ``System.parameters``) so that the static equilibrium
     matches ``target`` (shape (n, 3); loss: summed squared vertex distances), by L-BFGS with adjoint gradients;
-    parameters whose values are all positive stay positive (fitted on a log scale). Returns ``(X, info)``:
-    the fitted equilibrium and a dict with ``fitted`` (name -> value or array), ``loss``, ``iterations``,
-    ``equilibria``, ``stop``. The system keeps the fitted values."""
+    parameters whose values are all positive stay positive (fitted on a log scale). The first equilibrium,
+    from ``X0``, goes through the membrane continuation of ``solve_static`` when ``membrane_continuation`` is
+    set; the fit's solves start from it. Returns ``(X, info)``: the fitted equilibrium and a dict with
+    ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``, ``newton_iterations`` (all
+    of them, the first equilibrium's included), ``stop``. The system keeps the fitted values."""
     if isinstance(parameters, str):
         parameters = [parameters]
     return _hinge.fit(system._s, system._x(X0), system._x(target), [str(p) for p in parameters],
-                      int(max_iterations), float(gradient_tolerance))
+                      int(max_iterations), float(gradient_tolerance),
+                      _flag("membrane_continuation", membrane_continuation))
 
 
 def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
