@@ -379,6 +379,30 @@ def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations(
         hinge.solve_static(s, V, membrane_continuation="yes")
 
 
+def test_static_solve_without_a_stvk_membrane():
+    # The membrane continuation scales the StVK membrane; a system without one (springs in the plane, or
+    # the co-rotational membrane) is solved by plain Newton, with or without the option.
+    V, F = sheet(8, 3, 23, jitter=0.05)
+    V = V * [0.3, 0.3, 1.0]
+    clamp = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8)
+    free = np.setdiff1d(np.arange(len(V)), clamp)
+    for membrane in ("springs", "corotational"):
+        s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-2).add_gravity(0.5)
+        if membrane == "springs":
+            s.add_springs(1e3)
+        else:
+            s.add_membrane(1e6, 0.3, 1e-3, kind=membrane)
+        s.pin(clamp)
+        ends = []
+        for on in (True, False):
+            X, st = hinge.solve_static(s, V, gradient_tolerance=1e-10, membrane_continuation=on)
+            _, g = s.evaluate(X, hessian=False)
+            assert np.abs(g.reshape(-1, 3)[free]).max() <= 1e-10
+            assert np.array_equal(X[clamp], V[clamp]) and V[:, 2].min() - X[:, 2].min() > 0.01
+            ends.append(X)
+        assert np.array_equal(ends[0], ends[1]), membrane
+
+
 def test_static_solve_reaches_equilibrium_and_holds_pins():
     V, F, s, clamp = clamped_sheet(23, 1e-2, 1e6)
     X, stats = hinge.solve_static(s, V)

@@ -108,9 +108,11 @@ pub fn mean_edge_length(rest: &TriMesh) -> f64 {
 /// is skipped: the next starts where the last good one ended); then the parameter's own values (set back
 /// bitwise) and the final solve. The statistics sum every stage's (their iterations and factorizations
 /// count); the last gradient norm is the final solve's. On failure `x` is unchanged, and so is the parameter.
+/// Without scales it is one plain Newton solve, and `parameter` is not looked up: a system without it (no
+/// membrane, the co-rotational one) solves as well.
 ///
 /// # Errors
-/// [`SolverError::Eval`] for an unknown parameter; the final solve's error.
+/// [`SolverError::Eval`] for an unknown parameter when there are scales; the final solve's error.
 pub fn minimize_continued(
     newton: &mut Newton,
     system: &mut System,
@@ -122,6 +124,9 @@ pub fn minimize_continued(
         source,
         stats: Box::default(),
     };
+    if scales.is_empty() {
+        return newton.minimize(system, x, None);
+    }
     let base = system.parameter(parameter).map_err(eval)?;
     let mut y = x.to_vec();
     let mut stats = NewtonStats::default();
