@@ -305,11 +305,11 @@ pub fn fit_scene(
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
     // A failure leaves `x` at rest; the fit's own first solve then reports what goes wrong.
-    let stages = crate::run::membrane_stages(scene, rest, &mut system)?;
+    let (parameter, stages) = crate::run::membrane_stages(scene, rest, &mut system)?;
     let start_iterations = if stages.is_empty() {
         0
     } else {
-        match minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages) {
+        match minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages) {
             Ok(st) => st.iterations,
             Err(e) => e.stats().iterations,
         }
@@ -540,10 +540,11 @@ mod tests {
             ..params
         };
         let mut newton = Newton::new(&system, &pins, solver, params).unwrap();
-        let stages = membrane_stages(&truth, &rest, &mut system).unwrap();
+        let (parameter, stages) = membrane_stages(&truth, &rest, &mut system).unwrap();
+        assert_eq!(parameter, "membrane.young");
         assert!(!stages.is_empty());
         let mut x = rest.positions().to_vec();
-        minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages).unwrap();
+        minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages).unwrap();
         let target = rest.with_positions(x).unwrap();
         let mut counts = Vec::new();
         for on in [true, false] {

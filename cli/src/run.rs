@@ -38,7 +38,9 @@ use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
     FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SubstepPolicy,
 };
-use hinge_solver::statics::{mean_edge_length, membrane_scales, minimize_continued};
+use hinge_solver::statics::{
+    continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
+};
 
 /// Arguments of `hinge run`.
 #[derive(Args, Default)]
@@ -310,10 +312,12 @@ fn min_clearance(obstacles: &[Obstacle], x: &[Vector3<f64>]) -> Option<f64> {
 /// Newton iteration budget of a static solve (at least; the scene's when larger).
 pub const STATIC_ITERATIONS: usize = 2000;
 
-/// The membrane stiffness scales, ascending and below 1, that a static solve of `scene` passes through
-/// before the scene's own (membrane continuation: [`hinge_solver::statics`]; empty: none): those of
-/// [`hinge_solver::statics::membrane_scales`] on the scene's `system` for the StVK membrane, none for the
-/// co-rotational one or when `solver.membrane_continuation` is false.
+/// The membrane parameter a static solve of `scene` scales, and the scales, ascending and below 1, it passes
+/// through before the scene's own (membrane continuation: [`hinge_solver::statics`]; no scales: none):
+/// `membrane.young` with [`hinge_solver::statics::membrane_scales`] for the StVK membrane, and
+/// `corotational-membrane.stiffness` (k = Y h / (1 + ν), proportional to Y) with
+/// [`hinge_solver::statics::continuation_scales`] of the scene's Y and h for the co-rotational one; none when
+/// `solver.membrane_continuation` is false.
 ///
 /// # Errors
 /// A one-line message if the system cannot be evaluated at rest.
@@ -321,11 +325,19 @@ pub fn membrane_stages(
     scene: &Scene,
     rest: &TriMesh,
     system: &mut System,
-) -> Result<Vec<f64>, String> {
-    if !scene.solver.membrane_continuation || scene.material.membrane != "stvk" {
-        return Ok(Vec::new());
+) -> Result<(&'static str, Vec<f64>), String> {
+    if !scene.solver.membrane_continuation {
+        return Ok(("membrane.young", Vec::new()));
     }
-    membrane_scales(system, rest).map_err(|e| e.to_string())
+    if scene.material.membrane == "corotational" {
+        let m = &scene.material;
+        return continuation_scales(system, rest, m.young, m.thickness)
+            .map(|s| ("corotational-membrane.stiffness", s))
+            .map_err(|e| e.to_string());
+    }
+    membrane_scales(system, rest)
+        .map(|s| ("membrane.young", s))
+        .map_err(|e| e.to_string())
 }
 
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
@@ -355,8 +367,8 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
-    let stages = membrane_stages(scene, rest, &mut system)?;
-    let stats = minimize_continued(&mut newton, &mut system, &mut x, "membrane.young", &stages)
+    let (parameter, stages) = membrane_stages(scene, rest, &mut system)?;
+    let stats = minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages)
         .map_err(|e| format!("static solve: {e}"))?;
     let mut summary = RunSummary {
         frames: 0,
@@ -1011,7 +1023,7 @@ mod tests {
 
     fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
         let mut system = build(scene, rest, false)?.system;
-        super::membrane_stages(scene, rest, &mut system)
+        super::membrane_stages(scene, rest, &mut system).map(|(_, s)| s)
     }
 
     /// The clamped strip of `hinge stability` with Young's modulus `young` and thickness `h`.
@@ -1064,7 +1076,8 @@ mod tests {
                 .unwrap()
                 .is_empty()
         );
-        // Thick plates, the co-rotational membrane and the scene key: no stages.
+        // Thick plates and the scene key: no stages. The co-rotational membrane: the same stages (its
+        // stiffness is scaled instead of Young's modulus).
         assert!(
             membrane_stages(&strip(1e10, 1e-2), &rest)
                 .unwrap()
@@ -1072,7 +1085,18 @@ mod tests {
         );
         let mut corot = strip(1e10, 1e-4);
         corot.material.membrane = "corotational".into();
-        assert!(membrane_stages(&corot, &rest).unwrap().is_empty());
+        let mut system = build(&corot, &rest, false).unwrap().system;
+        let (parameter, corot_stages) = super::membrane_stages(&corot, &rest, &mut system).unwrap();
+        assert_eq!(parameter, "corotational-membrane.stiffness");
+        assert!(system.parameter(parameter).is_ok());
+        assert!(
+            corot_stages.len() == stages.len()
+                && corot_stages
+                    .iter()
+                    .zip(&stages)
+                    .all(|(a, b)| (a / b - 1.0).abs() < 1e-12),
+            "{corot_stages:?} vs {stages:?}"
+        );
         let mut off = strip(1e10, 1e-4);
         off.solver.membrane_continuation = false;
         assert!(membrane_stages(&off, &rest).unwrap().is_empty());
@@ -1081,9 +1105,16 @@ mod tests {
     #[test]
     fn membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations() {
         // A 1 mm strip of Y = 1e8 Pa bends down by most of its length: plain Newton needs 90 iterations.
+        for membrane in ["stvk", "corotational"] {
+            continued_and_plain_agree(membrane);
+        }
+    }
+
+    fn continued_and_plain_agree(membrane: &str) {
         let mut results = Vec::new();
         for on in [true, false] {
             let mut scene = strip(1e8, 1e-3);
+            scene.material.membrane = membrane.into();
             scene.solver.membrane_continuation = on;
             let rest = scene.rest_mesh(None).unwrap();
             let s = equilibrium(&scene, &rest, None).unwrap();
@@ -1102,9 +1133,13 @@ mod tests {
             with.far_end_drop,
             without.far_end_drop
         );
+        println!(
+            "{membrane}: {} Newton iterations with the continuation, {} without",
+            with.newton_iterations, without.newton_iterations
+        );
         assert!(
             2 * with.newton_iterations < without.newton_iterations,
-            "{} vs {}",
+            "{membrane}: {} vs {}",
             with.newton_iterations,
             without.newton_iterations
         );

@@ -21,7 +21,9 @@ use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
-use hinge_solver::statics::{mean_edge_length, membrane_scales, minimize_continued};
+use hinge_solver::statics::{
+    continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
+};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
 };
@@ -588,23 +590,61 @@ pub fn solve_static<'py>(
     )?;
     let pins = system.pins()?;
     system.ensure(py)?;
-    let rest = &system.rest;
+    let (rest, terms) = (&system.rest, &system.terms);
     let Some((sys, _, _)) = &mut system.built else {
         return Err(value_error("system not built"));
     };
     let r = py.detach(|| -> Result<NewtonStats, String> {
-        let stages = if membrane_continuation {
-            membrane_scales(sys, rest).map_err(|e| e.to_string())?
+        let (parameter, stages) = if membrane_continuation {
+            continuation(terms, sys, rest)?
         } else {
-            Vec::new()
+            ("membrane.young", Vec::new())
         };
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
-        minimize_continued(&mut newton, sys, &mut x, "membrane.young", &stages)
+        minimize_continued(&mut newton, sys, &mut x, parameter, &stages)
             .map_err(|e| format!("static solve: {e}"))
     });
     let stats = r.map_err(value_error)?;
     Ok((to_array(py, &x)?, stats_dict(py, &stats)?))
+}
+
+/// The membrane continuation of a static solve on `sys` (built from `terms`): the StVK membrane's
+/// `membrane.young` with [`membrane_scales`], or else the co-rotational membrane's
+/// `corotational-membrane.stiffness` with [`continuation_scales`] of its thickness and the Young's modulus
+/// its stiffness stands for (`k (1 + ν) / h`, so a stiffness set with `set_parameter` counts); no stages
+/// when neither needs them.
+fn continuation(
+    terms: &[Term],
+    sys: &mut System,
+    rest: &TriMesh,
+) -> Result<(&'static str, Vec<f64>), String> {
+    let stvk = membrane_scales(sys, rest).map_err(|e| e.to_string())?;
+    if !stvk.is_empty() {
+        return Ok(("membrane.young", stvk));
+    }
+    let corotational = terms.iter().find_map(|t| match t {
+        Term::Membrane {
+            poisson,
+            thickness,
+            corotational: true,
+            ..
+        } => Some((*poisson, *thickness)),
+        _ => None,
+    });
+    let parameter = "corotational-membrane.stiffness";
+    let k = sys
+        .parameter(parameter)
+        .ok()
+        .and_then(|v| v.first().copied());
+    match (corotational, k) {
+        (Some((poisson, thickness)), Some(k)) if thickness > 0.0 => {
+            continuation_scales(sys, rest, k * (1.0 + poisson) / thickness, thickness)
+                .map(|s| (parameter, s))
+                .map_err(|e| e.to_string())
+        }
+        _ => Ok(("membrane.young", Vec::new())),
+    }
 }
 
 /// Implicit Euler time stepping on a system: `ImplicitEuler(system, X0, dt, density, V0=None, …)`.
@@ -891,7 +931,7 @@ pub fn fit<'py>(
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
-    let rest = system.rest.clone();
+    let (rest, terms) = (system.rest.clone(), system.terms.clone());
     let params = newton_params(
         PyNewtonOptions {
             max_iterations: 500,
@@ -934,10 +974,10 @@ pub fn fit<'py>(
         ..FitOptions::default()
     };
     let r = py.detach(|| -> Result<(FitResult, usize), String> {
-        let stages = if membrane_continuation {
-            membrane_scales(sys, &rest).map_err(|e| e.to_string())?
+        let (parameter, stages) = if membrane_continuation {
+            continuation(&terms, sys, &rest)?
         } else {
-            Vec::new()
+            ("membrane.young", Vec::new())
         };
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
@@ -946,7 +986,7 @@ pub fn fit<'py>(
         let start = if stages.is_empty() {
             0
         } else {
-            match minimize_continued(&mut newton, sys, &mut x, "membrane.young", &stages) {
+            match minimize_continued(&mut newton, sys, &mut x, parameter, &stages) {
                 Ok(st) => st.iterations,
                 Err(e) => e.stats().iterations,
             }

@@ -11,7 +11,8 @@
 //! the real material in 37 iterations in all (`hinge stability`'s stiff beams: 2–418 → 2–51).
 //!
 //! [`membrane_scales`] chooses the stages for a [`System`] whose StVK membrane term is named `membrane`;
-//! [`minimize_continued`] runs them. In dynamics this is not used: inertia already keeps the steps short
+//! [`continuation_scales`] for a membrane whose Young's modulus and thickness the caller knows (the
+//! co-rotational membrane: its `stiffness` is then the parameter to scale); [`minimize_continued`] runs them. In dynamics this is not used: inertia already keeps the steps short
 //! (the same pre-solve per step makes the drape slower: 737 → 1 914 Newton iterations).
 
 use hinge_core::TriMesh;
@@ -49,6 +50,21 @@ pub fn membrane_scales(system: &mut System, rest: &TriMesh) -> Result<Vec<f64>, 
     ) else {
         return Ok(Vec::new());
     };
+    continuation_scales(system, rest, young, thickness)
+}
+
+/// [`membrane_scales`] for a membrane of Young's modulus `young` and thickness `thickness` given by the
+/// caller: for a membrane term that does not carry them as parameters, such as the co-rotational membrane
+/// (whose `stiffness` k = Y h / (1 + ν) is then the parameter to scale: the energy is proportional to it).
+///
+/// # Errors
+/// [`SolverError::Eval`] if `system` cannot be evaluated at the rest positions.
+pub fn continuation_scales(
+    system: &mut System,
+    rest: &TriMesh,
+    young: f64,
+    thickness: f64,
+) -> Result<Vec<f64>, SolverError> {
     let x = rest.positions();
     let area: f64 = rest
         .triangles()

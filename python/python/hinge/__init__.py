@@ -270,9 +270,10 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
     ``extrapolate`` tries longer steps after a full shifted or definite one (as the scene keys
     ``solver.globalization`` and ``solver.extrapolate``). With ``membrane_continuation`` (as the scene key
-    ``solver.membrane_continuation``), a thin shell's StVK membrane is first softened to about the inverse of
-    its membrane/bending stiffness ratio and raised back in stages, each a Newton solve from the last (all
-    counted in the stats): thin stiff strips then take tens of iterations instead of hundreds.
+    ``solver.membrane_continuation``), a thin shell's membrane (StVK, or the co-rotational one through its
+    stiffness) is first softened to about the inverse of its membrane/bending stiffness ratio and raised
+    back in stages, each a Newton solve from the last (all counted in the stats): thin stiff strips then
+    take tens of iterations instead of hundreds.
 
     Unit-free stopping tests, off (0) by default, as the scene keys of the same names: a solve also stops
     when the gradient norm is at most ``relative_gradient_tolerance`` times its norm at the start, or after
