@@ -21,7 +21,7 @@ use hinge_core::TriMesh;
 use hinge_core::nalgebra::Vector3;
 use hinge_solver::adjoint::{Fit, FitOptions, FitVariable, Link, TargetLoss};
 use hinge_solver::newton::{Newton, NewtonParams};
-use hinge_solver::statics::minimize_continued;
+use hinge_solver::statics::continued_start;
 
 use crate::run::{Built, STATIC_ITERATIONS, build};
 use crate::scene::Scene;
@@ -304,16 +304,8 @@ pub fn fit_scene(
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
-    // A failure leaves `x` at rest; the fit's own first solve then reports what goes wrong.
     let (parameter, stages) = crate::run::membrane_stages(scene, rest, &mut system)?;
-    let start_iterations = if stages.is_empty() {
-        0
-    } else {
-        match minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages) {
-            Ok(st) => st.iterations,
-            Err(e) => e.stats().iterations,
-        }
-    };
+    let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
     let mut fit =
         Fit::new(&system, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
     fit.observe(|p| {

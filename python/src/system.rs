@@ -22,7 +22,7 @@ use hinge_solver::newton::{
     Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
 use hinge_solver::statics::{
-    continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
+    continuation_scales, continued_start, mean_edge_length, membrane_scales, minimize_continued,
 };
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -942,7 +942,7 @@ pub fn fit<'py>(
             relative_step_tolerance: 0.0,
             remember_shift: true,
         },
-        &system.rest,
+        &rest,
     )?;
     let pins = system.pins()?;
     let sys = system.system(py)?;
@@ -981,16 +981,8 @@ pub fn fit<'py>(
         };
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
-        // The first equilibrium through the continuation; a failure leaves `x` as given and the fit's own
-        // first solve reports what goes wrong.
-        let start = if stages.is_empty() {
-            0
-        } else {
-            match minimize_continued(&mut newton, sys, &mut x, parameter, &stages) {
-                Ok(st) => st.iterations,
-                Err(e) => e.stats().iterations,
-            }
-        };
+        // The first equilibrium through the continuation; the fit's solves start from it.
+        let start = continued_start(&mut newton, sys, &mut x, parameter, &stages);
         let loss = TargetLoss::all(target);
         let mut fit =
             Fit::new(sys, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;

@@ -12,8 +12,9 @@
 //!
 //! [`membrane_scales`] chooses the stages for a [`System`] whose StVK membrane term is named `membrane`;
 //! [`continuation_scales`] for a membrane whose Young's modulus and thickness the caller knows (the
-//! co-rotational membrane: its `stiffness` is then the parameter to scale); [`minimize_continued`] runs them. In dynamics this is not used: inertia already keeps the steps short
-//! (the same pre-solve per step makes the drape slower: 737 → 1 914 Newton iterations).
+//! co-rotational membrane: its `stiffness` is then the parameter to scale); [`minimize_continued`] runs
+//! them. In dynamics this is not used: inertia already keeps the steps short (the same pre-solve per step
+//! makes the drape slower: 737 → 1 914 Newton iterations).
 
 use hinge_core::TriMesh;
 use hinge_core::bending::{Parallelism, Request};
@@ -163,4 +164,24 @@ pub fn minimize_continued(
     stats.absorb(&last);
     x.copy_from_slice(&y);
     Ok(stats)
+}
+
+/// A start for later solves (a fit's first equilibrium, say): when there are `scales`, moves `x` to the
+/// equilibrium [`minimize_continued`] reaches, or leaves it where it is if that fails (the caller's own solve
+/// from there then reports what goes wrong); without scales, does nothing. Returns the Newton iterations
+/// spent.
+pub fn continued_start(
+    newton: &mut Newton,
+    system: &mut System,
+    x: &mut [Vector3<f64>],
+    parameter: &str,
+    scales: &[f64],
+) -> usize {
+    if scales.is_empty() {
+        return 0;
+    }
+    match minimize_continued(newton, system, x, parameter, scales) {
+        Ok(stats) => stats.iterations,
+        Err(e) => e.stats().iterations,
+    }
 }

@@ -1059,7 +1059,7 @@ fn thin_strip() -> (TriMesh, System, Pins) {
 
 #[test]
 fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
-    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    use hinge_solver::statics::{continued_start, membrane_scales, minimize_continued};
     let (rest, mut sys, pins) = thin_strip();
     let params = NewtonParams {
         gradient_tolerance: 1e-9,
@@ -1122,6 +1122,21 @@ fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
     assert!(minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).is_err());
     assert_eq!(x, x0);
     assert_eq!(sys.parameter("membrane.young").unwrap(), vec![1e10]);
+    // `continued_start`: the same failure leaves x where it was and reports the iterations it spent; no
+    // scales, no work; success moves x to the continued equilibrium.
+    let spent = continued_start(&mut newton, &mut sys, &mut x, "membrane.young", &scales);
+    assert!(spent > 0 && x == x0, "{spent}");
+    assert_eq!(
+        continued_start(&mut newton, &mut sys, &mut x, "membrane.young", &[]),
+        0
+    );
+    assert_eq!(x, x0);
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
+    assert_eq!(
+        continued_start(&mut newton, &mut sys, &mut x, "membrane.young", &scales),
+        sc.iterations
+    );
+    assert_eq!(x, xc);
     // Without stages the parameter is not needed: a system with no StVK membrane (here, the parameter name
     // is one no term has) is one plain Newton solve, bitwise the same as `Newton::minimize`.
     let mut newton = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
