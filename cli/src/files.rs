@@ -7,12 +7,15 @@ use hinge_core::TriMesh;
 use hinge_core::meshio::read_mesh;
 
 /// Reads a mesh file (OBJ, OFF or PLY by extension); polygons with more than three corners are
-/// fan-triangulated, and one line on stderr says how many.
+/// fan-triangulated, and one line on stderr says how many. Every command bends the mesh, so its hinge
+/// topology is checked here, where a non-manifold edge, an inconsistent orientation or a repeated face can
+/// still be named as the file counts (face and line), not by the 0-based triangle numbers of the library.
 ///
 /// # Errors
 /// The reader's one-line message (it names the file and counts as the file does).
 pub fn read(path: &Path) -> Result<TriMesh, String> {
     let file = read_mesh(path).map_err(|e| e.to_string())?;
+    file.topology().map_err(|e| e.to_string())?;
     if file.polygons_split > 0 {
         eprintln!(
             "hinge: {}: {} faces with more than three corners fan-triangulated ({} triangles in all)",

@@ -1337,6 +1337,53 @@ fn mesh_formats_through_the_command_line() {
     )
     .unwrap();
     std::fs::write(path("empty.obj"), "# no records\n").unwrap();
+    // Meshes no hinge energy takes (scanned and CAD meshes have them): named as the file counts, with lines,
+    // not by the library's 0-based triangles.
+    let square = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\n# faces\n";
+    std::fs::write(
+        path("three.obj"),
+        format!("{square}f 1 2 3\nf 2 4 3\nf 2 3 5\n"),
+    )
+    .unwrap();
+    std::fs::write(path("flip.obj"), format!("{square}f 1 2 3\nf 2 3 4\n")).unwrap();
+    std::fs::write(
+        path("twice.off"),
+        "OFF\n4 3 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n3 2 0 1\n",
+    )
+    .unwrap();
+    for (file, words) in [
+        (
+            "three.obj",
+            "the edge between vertices 2 and 3 is shared by 3 triangles (of face 1 (line 7), face 2 (line 8) and face 3 (line 9))",
+        ),
+        (
+            "flip.obj",
+            "face 1 (line 7) and face 2 (line 8) traverse the edge between vertices 2 and 3 in the same direction",
+        ),
+        (
+            "twice.off",
+            "face 0 (line 7) and face 2 (line 9) have the same three vertices (OFF numbering: from 0)",
+        ),
+    ] {
+        for args in [
+            vec!["stats", "--rest", &path(file)],
+            vec![
+                "eval",
+                "--rest",
+                &path(file),
+                "--energy",
+                "discrete-shells",
+                "--out",
+                &path("eval"),
+            ],
+        ] {
+            let o = hinge(&args);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+            assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+            assert!(err.contains(file) && err.contains(words), "{args:?}: {err}");
+        }
+    }
     for (file, words) in [
         ("wrong.off", "not `OFF`"),
         ("truncated.ply", "truncated"),
@@ -1393,6 +1440,24 @@ fn mesh_formats_through_the_command_line() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(hinge_core::meshio::read_mesh(out.join("static.ply")).is_ok());
+    // A scene's mesh file with a non-manifold edge: the run stops on one line in the file's numbering.
+    let shown =
+        String::from_utf8_lossy(&shown.stdout).replace("cells = [30, 30]", "obj = \"three.obj\"");
+    std::fs::write(path("three.toml"), shown).unwrap();
+    let o = hinge(&[
+        "run",
+        &path("three.toml"),
+        "--no-frames",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("three.obj") && err.contains("face 3 (line 9)"),
+        "{err}"
+    );
     let o = hinge(&["run", "drape", "--format", "stl"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");

@@ -58,6 +58,17 @@ pub enum MeshError {
         /// Its three vertices.
         vertices: [usize; 3],
     },
+    /// A triangle of the rest shape so large that its area is not representable (the cross product of its
+    /// edges overflows f64: coordinates beyond about 1e77).
+    #[error(
+        "triangle {triangle} (vertices {vertices:?}) is too large: its area overflows f64 (rescale the mesh)"
+    )]
+    TriangleTooLarge {
+        /// Triangle index.
+        triangle: usize,
+        /// Its three vertices.
+        vertices: [usize; 3],
+    },
     /// An edge is shared by three or more triangles.
     #[error("edge ({}, {}) is shared by {count} triangles (the first three are {triangles:?}); a manifold edge has at most two", edge[0], edge[1])]
     NonManifoldEdge {

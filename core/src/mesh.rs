@@ -33,6 +33,17 @@ impl TriMesh {
         for (t, tri) in triangles.iter().enumerate() {
             let p = [positions[tri[0]], positions[tri[1]], positions[tri[2]]];
             if is_degenerate(&p) {
+                // Finite coordinates whose edge cross product overflows: not flat, too large.
+                if !(p[1] - p[0])
+                    .cross(&(p[2] - p[0]))
+                    .norm_squared()
+                    .is_finite()
+                {
+                    return Err(MeshError::TriangleTooLarge {
+                        triangle: t,
+                        vertices: *tri,
+                    });
+                }
                 return Err(MeshError::ZeroAreaTriangle {
                     triangle: t,
                     vertices: *tri,

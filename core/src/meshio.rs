@@ -21,6 +21,7 @@ use thiserror::Error;
 
 use crate::error::MeshError;
 use crate::mesh::TriMesh;
+use crate::topology::Topology;
 
 /// A mesh file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,6 +89,46 @@ pub struct MeshFile {
     /// or `s`,`t`, `texture_u`,`texture_v` — or a face's `texcoord` list), `None` where the face has
     /// none; empty when the file has none at all (OFF never has).
     pub uvs: Vec<Option<crate::anisotropy::TriangleUv>>,
+    /// The file's name, as given to the reader (for messages).
+    name: String,
+    /// The line of each vertex and face record (empty for a binary PLY).
+    vertex_lines: Vec<usize>,
+    face_lines: Vec<usize>,
+}
+
+impl MeshFile {
+    /// A [`MeshError`] about [`MeshFile::mesh`] (0-based vertices and triangles) told in the file's own
+    /// numbering: vertices and faces counted as the format counts them (OBJ from 1, OFF and PLY from 0), with
+    /// their lines where the file is text, a fanned polygon named by its face.
+    pub fn describe(&self, e: &MeshError) -> String {
+        self.numbering().describe(e, self.mesh.n_vertices())
+    }
+
+    /// The hinge topology of the file's mesh ([`Topology::new`]). A mesh file may hold triangles no hinge
+    /// energy accepts (an edge of three faces, faces of opposite orientation across an edge, the same face
+    /// twice: common in scanned and CAD meshes); here they are errors in the file's numbering.
+    ///
+    /// # Errors
+    /// [`MeshFileError::Mesh`] naming the faces and vertices as the file counts them.
+    pub fn topology(&self) -> Result<Topology, MeshFileError> {
+        Topology::new(self.mesh.n_vertices(), self.mesh.triangles()).map_err(|source| {
+            MeshFileError::Mesh {
+                path: self.name.clone(),
+                format: self.format,
+                message: self.describe(&source),
+                source,
+            }
+        })
+    }
+
+    fn numbering(&self) -> Numbering<'_> {
+        Numbering {
+            format: self.format,
+            face_of_triangle: &self.face_of_triangle,
+            vertex_lines: &self.vertex_lines,
+            face_lines: &self.face_lines,
+        }
+    }
 }
 
 /// Why a mesh file could not be read or written.
@@ -228,6 +269,9 @@ pub fn read_mesh_from(
             polygons_split,
             face_of_triangle,
             uvs,
+            name: name.to_string(),
+            vertex_lines: raw.vertex_lines,
+            face_lines: raw.face_lines,
         }),
         Err(source) => {
             let numbering = Numbering {
@@ -302,6 +346,13 @@ impl Numbering<'_> {
             ),
             MeshError::ZeroAreaTriangle { triangle, vertices } => format!(
                 "{} has zero area (vertices {}, {}, {} are colinear)",
+                self.face(*triangle),
+                self.vertex_number(vertices[0]),
+                self.vertex_number(vertices[1]),
+                self.vertex_number(vertices[2])
+            ),
+            MeshError::TriangleTooLarge { triangle, vertices } => format!(
+                "{} is too large: its area overflows f64 (vertices {}, {}, {}; rescale the mesh)",
                 self.face(*triangle),
                 self.vertex_number(vertices[0]),
                 self.vertex_number(vertices[1]),

@@ -187,6 +187,109 @@ fn mesh_errors_count_as_the_file_does() {
     // A zero-area triangle.
     let e = message(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", MeshFormat::Obj);
     assert!(e.contains("face 1 (line 4) has zero area"), "{e}");
+    // A triangle whose area overflows is too large, not flat (it used to be reported as colinear); one
+    // of 1e70 is still fine.
+    let big = |s: &str| format!("v 0 0 0\nv {s} 0 0\nv 0 {s} 0\nv {s} {s} 1\nf 1 2 3\nf 2 4 3\n");
+    let e = message(big("1e200").as_bytes(), MeshFormat::Obj);
+    assert!(
+        e.contains("face 1 (line 5) is too large: its area overflows f64")
+            && !e.contains("zero area"),
+        "{e}"
+    );
+    let m = read(big("1e70").as_bytes(), MeshFormat::Obj).unwrap();
+    assert!(m.topology().is_ok());
+}
+
+/// `MeshFile::topology`'s one-line error, checked to name the file and the format's numbering.
+fn topology_message(bytes: &[u8], format: MeshFormat) -> String {
+    let file = read(bytes, format).unwrap();
+    let e = file.topology().unwrap_err();
+    let MeshFileError::Mesh {
+        ref message,
+        ref source,
+        ..
+    } = e
+    else {
+        panic!("not a mesh error: {e}");
+    };
+    assert_eq!(*message, file.describe(source));
+    let e = e.to_string();
+    assert!(!e.contains('\n'), "one line: {e}");
+    assert!(e.starts_with("test: "), "names the file: {e}");
+    e
+}
+
+#[test]
+fn topology_errors_count_as_the_file_does() {
+    // An edge (vertices 2–3 in OBJ numbering) shared by three faces, after a comment line.
+    let square = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\n# faces\n";
+    let e = topology_message(
+        format!("{square}f 1 2 3\nf 2 4 3\nf 2 3 5\n").as_bytes(),
+        MeshFormat::Obj,
+    );
+    assert!(
+        e.contains(
+            "the edge between vertices 2 and 3 is shared by 3 triangles (of face 1 (line 7), face 2 \
+             (line 8) and face 3 (line 9))"
+        ) && e.ends_with("(OBJ numbering: from 1)"),
+        "{e}"
+    );
+    // Opposite orientations across an edge, in OFF (from 0).
+    let e = topology_message(
+        b"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 2 3\n",
+        MeshFormat::Off,
+    );
+    assert!(
+        e.contains(
+            "face 0 (line 7) and face 1 (line 8) traverse the edge between vertices 1 and 2 in the same \
+             direction"
+        ) && e.ends_with("(OFF numbering: from 0)"),
+        "{e}"
+    );
+    // A face given twice in a binary PLY (no lines to name): the faces by number. The second copy is the
+    // first face's corners rotated, so the check does not depend on the corner a face starts at.
+    let positions: Vec<Vector3<f64>> = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 1.0, 0.0],
+    ]
+    .iter()
+    .map(|p| Vector3::new(p[0], p[1], p[2]))
+    .collect();
+    let mut bytes = Vec::new();
+    write_ply_to(
+        &mut bytes,
+        &positions,
+        &[[0, 1, 2], [1, 3, 2], [2, 0, 1]],
+        PlyEncoding::BinaryLittleEndian,
+    )
+    .unwrap();
+    let e = topology_message(&bytes, MeshFormat::Ply);
+    assert!(
+        e.contains("face 0 and face 2 have the same three vertices")
+            && e.ends_with("(PLY numbering: from 0)"),
+        "{e}"
+    );
+    // A fanned polygon is named by its own face: the quad 1 2 4 3 fans into (1 2 4) and (1 4 3); the
+    // triangle 4 3 1 repeats the second.
+    let e = topology_message(
+        format!("{square}f 1 2 4 3\nf 4 3 1\n").as_bytes(),
+        MeshFormat::Obj,
+    );
+    assert!(
+        e.contains("face 1 (line 7) and face 2 (line 8) have the same three vertices"),
+        "{e}"
+    );
+    // Valid meshes: the same topology as the library builds from the mesh.
+    for (name, mesh) in meshes() {
+        let mut bytes = Vec::new();
+        write_off_to(&mut bytes, mesh.positions(), mesh.triangles()).unwrap();
+        let file = read(&bytes, MeshFormat::Off).unwrap();
+        let topology = file.topology().unwrap();
+        let direct = hinge_core::Topology::new(mesh.n_vertices(), mesh.triangles()).unwrap();
+        assert_eq!(topology.hinges(), direct.hinges(), "{name}");
+    }
 }
 
 #[test]
@@ -295,8 +398,15 @@ fn random_bytes_never_panic() {
     }
     let mut errors = 0;
     for (bytes, f) in &samples {
-        match std::panic::catch_unwind(|| read(bytes, *f)) {
-            Ok(Ok(m)) => assert!(m.mesh.n_triangles() > 0),
+        // The topology of what was read, with its errors in the file's numbering, is part of reading.
+        let read_all = || read(bytes, *f).map(|m| (m.topology().map_err(|e| e.to_string()), m));
+        match std::panic::catch_unwind(read_all) {
+            Ok(Ok((topology, m))) => {
+                assert!(m.mesh.n_triangles() > 0);
+                if let Err(e) = topology {
+                    assert!(!e.contains('\n') && e.starts_with("test: "), "{e}");
+                }
+            }
             Ok(Err(e)) => {
                 errors += 1;
                 assert!(!e.to_string().contains('\n'), "{e}");
