@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use hinge_core::TriMesh;
-use hinge_core::meshio::read_mesh;
+use hinge_core::meshio::{FileNumbering, read_mesh};
 
 /// Reads a mesh file (OBJ, OFF or PLY by extension); polygons with more than three corners are
 /// fan-triangulated, and one line on stderr says how many. Every command bends the mesh, so its hinge
@@ -14,6 +14,15 @@ use hinge_core::meshio::read_mesh;
 /// # Errors
 /// The reader's one-line message (it names the file and counts as the file does).
 pub fn read(path: &Path) -> Result<TriMesh, String> {
+    read_numbered(path).map(|(mesh, _)| mesh)
+}
+
+/// [`read`], with how the file counts vertices and faces (for errors about the mesh later on:
+/// [`hinge_core::EvalError::describe`]).
+///
+/// # Errors
+/// As [`read`].
+pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
     let file = read_mesh(path).map_err(|e| e.to_string())?;
     file.topology().map_err(|e| e.to_string())?;
     if file.polygons_split > 0 {
@@ -24,5 +33,6 @@ pub fn read(path: &Path) -> Result<TriMesh, String> {
             file.mesh.n_triangles()
         );
     }
-    Ok(file.mesh)
+    let numbering = file.numbering().clone();
+    Ok((file.mesh, numbering))
 }

@@ -304,7 +304,8 @@ pub fn fit_scene(
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
-    let (parameter, stages) = crate::run::membrane_stages(scene, rest, &mut system)?;
+    let (parameter, stages) =
+        crate::run::membrane_stages(scene, rest, &mut system).map_err(|e| e.to_string())?;
     let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
     let mut fit =
         Fit::new(&system, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;

@@ -15,7 +15,7 @@ use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::Plasticity;
 use hinge_core::energy::{Energy, HingeTerm, System};
-use hinge_core::meshio::{MeshFormat, write_mesh};
+use hinge_core::meshio::{FileNumbering, MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
@@ -36,7 +36,8 @@ use hinge_solver::linear::{
 use crate::scene::Scene;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
-    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SubstepPolicy,
+    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SolverError,
+    SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
@@ -320,24 +321,21 @@ pub const STATIC_ITERATIONS: usize = 2000;
 /// `solver.membrane_continuation` is false.
 ///
 /// # Errors
-/// A one-line message if the system cannot be evaluated at rest.
+/// [`SolverError::Eval`] if the system cannot be evaluated at rest.
 pub fn membrane_stages(
     scene: &Scene,
     rest: &TriMesh,
     system: &mut System,
-) -> Result<(&'static str, Vec<f64>), String> {
+) -> Result<(&'static str, Vec<f64>), SolverError> {
     if !scene.solver.membrane_continuation {
         return Ok(("membrane.young", Vec::new()));
     }
     if scene.material.membrane == "corotational" {
         let m = &scene.material;
         return continuation_scales(system, rest, m.young, m.thickness)
-            .map(|s| ("corotational-membrane.stiffness", s))
-            .map_err(|e| e.to_string());
+            .map(|s| ("corotational-membrane.stiffness", s));
     }
-    membrane_scales(system, rest)
-        .map(|s| ("membrane.young", s))
-        .map_err(|e| e.to_string())
+    membrane_scales(system, rest).map(|s| ("membrane.young", s))
 }
 
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
@@ -349,6 +347,20 @@ pub fn equilibrium(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
+) -> Result<RunSummary, String> {
+    equilibrium_named(scene, rest, out, None)
+}
+
+/// [`equilibrium`], with an evaluation error's vertices and faces told in `names` (the rest mesh file's
+/// numbering) when given.
+///
+/// # Errors
+/// As [`equilibrium`].
+pub fn equilibrium_named(
+    scene: &Scene,
+    rest: &TriMesh,
+    out: Option<Output<'_>>,
+    names: Option<&FileNumbering>,
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
     let Built {
@@ -367,9 +379,10 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
-    let (parameter, stages) = membrane_stages(scene, rest, &mut system)?;
+    let (parameter, stages) = membrane_stages(scene, rest, &mut system)
+        .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let stats = minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages)
-        .map_err(|e| format!("static solve: {e}"))?;
+        .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let mut summary = RunSummary {
         frames: 0,
         newton_iterations: stats.iterations,
@@ -595,11 +608,24 @@ pub fn simulate(
         format: MeshFormat::Obj,
         pictures: true,
     });
-    simulate_until(scene, rest, out, None, progress)
+    simulate_until(scene, rest, out, None, None, progress)
+}
+
+/// A solver error's message; with `names` (a mesh file's numbering), an evaluation error names its vertices
+/// and faces as the file counts them ([`hinge_core::EvalError::describe`]).
+pub fn solver_message(e: &SolverError, names: Option<&FileNumbering>) -> String {
+    match (e, names) {
+        (SolverError::Eval { source, .. }, Some(n)) => {
+            format!("evaluation failed: {} {}", source.describe(n), n.note())
+        }
+        _ => e.to_string(),
+    }
 }
 
 /// [`simulate`] with the output's format chosen, stopping after the first frame that ends with `stop`
-/// set (the summary is then marked [`RunSummary::interrupted`] and counts the frames completed).
+/// set (the summary is then marked [`RunSummary::interrupted`] and counts the frames completed); with
+/// `names` (the rest mesh file's numbering), a step's evaluation error names its vertices and faces as the
+/// file counts them.
 ///
 /// # Errors
 /// As [`simulate`].
@@ -608,6 +634,7 @@ pub fn simulate_until(
     rest: &TriMesh,
     out: Option<Output<'_>>,
     stop: Option<&AtomicBool>,
+    names: Option<&FileNumbering>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
@@ -754,8 +781,9 @@ pub fn simulate_until(
                 .advance_with(&mut system, &mut x, &mut v, policy, motion)
                 .map_err(|e| {
                     format!(
-                        "frame {}: {e} (also in substeps down to dt/{}; {frame} frames completed)",
+                        "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed)",
                         frame + 1,
+                        solver_message(&e, names),
                         1u64 << policy.max_halvings.min(30)
                     )
                 })?,
@@ -763,8 +791,9 @@ pub fn simulate_until(
                 .advance_with(&mut system, &mut x, &mut v, motion)
                 .map_err(|e| {
                     format!(
-                        "frame {}: {e} ({frame} frames completed; written up to frame_{frame:04})",
-                        frame + 1
+                        "frame {}: {} ({frame} frames completed; written up to frame_{frame:04})",
+                        frame + 1,
+                        solver_message(&e, names)
                     )
                 })?,
         };
@@ -874,7 +903,8 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     if let Some(r) = args.resolution {
         scene.set_resolution(r)?;
     }
-    let rest = scene.rest_mesh(base.as_deref())?;
+    let (rest, names) = scene.rest_mesh_numbered(base.as_deref())?;
+    let names = names.as_ref();
     let format = args.format.mesh_format();
     let (threads, warning) = crate::limits::threads(args.threads)?;
     if let Some(w) = warning {
@@ -929,7 +959,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     });
     let frames = scene.frames;
     let summary = if args.statics {
-        pool.install(|| equilibrium(&scene, &rest, frames_dir))?
+        pool.install(|| equilibrium_named(&scene, &rest, frames_dir, names))?
     } else {
         pool.install(|| {
             simulate_until(
@@ -937,6 +967,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                 &rest,
                 frames_dir,
                 Some(&INTERRUPTED),
+                names,
                 |frame, fs, seconds, _| {
                     println!(
                         "frame {:>4}/{frames}: {} Newton iterations, {} factorizations, {} substep{}, {:.1} ms",
@@ -1023,7 +1054,9 @@ mod tests {
 
     fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
         let mut system = build(scene, rest, false)?.system;
-        super::membrane_stages(scene, rest, &mut system).map(|(_, s)| s)
+        super::membrane_stages(scene, rest, &mut system)
+            .map(|(_, s)| s)
+            .map_err(|e| e.to_string())
     }
 
     /// The clamped strip of `hinge stability` with Young's modulus `young` and thickness `h`.

@@ -992,9 +992,21 @@ impl Scene {
     /// # Errors
     /// A one-line message (unreadable or invalid mesh file, invalid grid).
     pub fn rest_mesh(&self, base: Option<&Path>) -> Result<TriMesh, String> {
+        self.rest_mesh_numbered(base).map(|(mesh, _)| mesh)
+    }
+
+    /// The rest mesh and, for a mesh file, how the file counts its vertices and faces (errors about the
+    /// mesh are then told in the file's numbering).
+    ///
+    /// # Errors
+    /// As [`Scene::rest_mesh`].
+    pub fn rest_mesh_numbered(
+        &self,
+        base: Option<&Path>,
+    ) -> Result<(TriMesh, Option<hinge_core::meshio::FileNumbering>), String> {
         if let Some(obj) = &self.mesh.obj {
             let path = base.map_or(obj.clone(), |b| b.join(obj));
-            return crate::files::read(&path);
+            return crate::files::read_numbered(&path).map(|(m, n)| (m, Some(n)));
         }
         let o = Vector3::from(self.mesh.origin);
         if self.mesh.shape.is_some() {
@@ -1004,7 +1016,10 @@ impl Scene {
             )
             .map_err(|e| format!("mesh: {e}"))?;
             let moved = m.positions().iter().map(|p| p + o).collect();
-            return m.with_positions(moved).map_err(|e| format!("mesh: {e}"));
+            return m
+                .with_positions(moved)
+                .map(|m| (m, None))
+                .map_err(|e| format!("mesh: {e}"));
         }
         let c = self.mesh.cells.unwrap_or([1, 1]);
         let diagonal = match self.mesh.diagonal.as_str() {
@@ -1015,7 +1030,9 @@ impl Scene {
         let g = grid(c[0], c[1], self.mesh.size[0], self.mesh.size[1], diagonal)
             .map_err(|e| format!("mesh: {e}"))?;
         let moved = g.positions().iter().map(|p| p + o).collect();
-        g.with_positions(moved).map_err(|e| format!("mesh: {e}"))
+        g.with_positions(moved)
+            .map(|m| (m, None))
+            .map_err(|e| format!("mesh: {e}"))
     }
 }
 

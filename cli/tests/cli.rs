@@ -1443,7 +1443,7 @@ fn mesh_formats_through_the_command_line() {
     // A scene's mesh file with a non-manifold edge: the run stops on one line in the file's numbering.
     let shown =
         String::from_utf8_lossy(&shown.stdout).replace("cells = [30, 30]", "obj = \"three.obj\"");
-    std::fs::write(path("three.toml"), shown).unwrap();
+    std::fs::write(path("three.toml"), &shown).unwrap();
     let o = hinge(&[
         "run",
         &path("three.toml"),
@@ -1458,6 +1458,35 @@ fn mesh_formats_through_the_command_line() {
         err.contains("three.obj") && err.contains("face 3 (line 9)"),
         "{err}"
     );
+    // An error during the run names the vertex as the file does too: OBJ vertex 5 (mesh vertex 4) sits at
+    // the sphere's centre, where the contact normal is undefined; dynamic and static runs alike.
+    std::fs::write(
+        path("centre.obj"),
+        "v -0.5 -0.5 0\nv 0.5 -0.5 0\nv -0.5 0.5 0\nv 0.5 0.5 0\nv 0 0 0\nf 1 2 5\nf 2 4 5\nf 4 3 5\nf 3 1 5\n",
+    )
+    .unwrap();
+    std::fs::write(
+        path("centre.toml"),
+        shown.replace("three.obj", "centre.obj"),
+    )
+    .unwrap();
+    let centre = path("centre.toml");
+    for statics in [false, true] {
+        let mut args = vec!["run", &centre, "--no-frames", "--frames", "1"];
+        args.extend(["--out", out.to_str().unwrap()]);
+        if statics {
+            args.push("--static");
+        }
+        let o = hinge(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(
+            err.contains("contact, vertex 5 (line 5): the vertex is at the sphere's centre")
+                && err.contains("(OBJ numbering: from 1)"),
+            "{err}"
+        );
+    }
     let o = hinge(&["run", "drape", "--format", "stl"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");

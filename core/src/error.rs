@@ -200,11 +200,24 @@ pub enum EvalError {
         /// What went wrong (the corner is in the mesh's corner order).
         source: DegenerateTriangle,
     },
-    /// An element of some energy (a spring, a membrane triangle, a contact) cannot be evaluated.
+    /// An energy's set-up cannot be used (a negative mass, a non-finite stiffness or margin); an error at a
+    /// mesh element (a vertex, an edge, a triangle) is [`EvalError::AtElement`].
     #[error("{element}: {message}")]
     Element {
-        /// The element, named (for example `spring on edge (3, 4)`).
+        /// What is named (for example `contact`, `gravity`).
         element: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// An element of some energy (a contact at a vertex, a spring on an edge, a membrane triangle) cannot be
+    /// evaluated, named by its vertices and triangle in the mesh's numbering ([`EvalError::describe`] tells
+    /// it in another, such as a mesh file's).
+    #[error("{energy}, {element}: {message}")]
+    AtElement {
+        /// The energy's name (`contact`, `mass-spring`, `membrane`, …).
+        energy: String,
+        /// The element.
+        element: ElementRef,
         /// What is wrong.
         message: String,
     },
@@ -252,6 +265,120 @@ pub enum EvalError {
         /// The hinge angle there.
         theta: f64,
     },
+}
+
+/// A mesh element an error is about, in the mesh's own numbering (vertices and triangles from 0, in the order
+/// they were given).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ElementRef {
+    /// A vertex.
+    Vertex(usize),
+    /// An edge (a spring), by its two vertices.
+    Edge([usize; 2]),
+    /// A triangle.
+    Triangle {
+        /// Its index.
+        triangle: usize,
+        /// Its vertices, in its corner order.
+        vertices: [usize; 3],
+    },
+}
+
+impl std::fmt::Display for ElementRef {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ElementRef::Vertex(v) => write!(f, "vertex {v}"),
+            ElementRef::Edge([a, b]) => write!(f, "edge ({a}, {b})"),
+            ElementRef::Triangle { triangle, vertices } => write!(
+                f,
+                "triangle {triangle} (vertices {}, {}, {})",
+                vertices[0], vertices[1], vertices[2]
+            ),
+        }
+    }
+}
+
+/// How a caller counts a mesh's vertices and triangles, for [`EvalError::describe`]: a mesh file's numbering
+/// (`hinge_core::meshio::FileNumbering`: OBJ from 1 with line numbers), or your own.
+pub trait ElementNames {
+    /// Vertex `v` (0-based in the mesh) named in full, for example `vertex 5 (line 5)`.
+    fn vertex(&self, v: usize) -> String;
+    /// Vertex `v`'s number alone, for lists (`vertices 5, 6, 9`).
+    fn vertex_number(&self, v: usize) -> String;
+    /// Triangle `t` (0-based in the mesh) named in full, for example `face 3 (line 9)`.
+    fn triangle(&self, t: usize) -> String;
+}
+
+impl EvalError {
+    /// The message with every vertex and triangle named by `names` instead of by the mesh's 0-based numbers
+    /// (what the `Display` form says). Hinges are named by their vertices (a hinge's own index is internal
+    /// to the topology): the edge x1–x2 and the wing vertices x0, x3.
+    pub fn describe(&self, names: &dyn ElementNames) -> String {
+        let list = |vs: &[usize]| {
+            vs.iter()
+                .map(|&v| names.vertex_number(v))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let hinge = |v: &[usize; 4]| {
+            format!(
+                "the hinge on the edge between vertices {} and {} (wing vertices {} and {})",
+                names.vertex_number(v[1]),
+                names.vertex_number(v[2]),
+                names.vertex_number(v[0]),
+                names.vertex_number(v[3])
+            )
+        };
+        match self {
+            EvalError::Mesh(MeshError::NonFiniteCoordinate {
+                vertex,
+                axis,
+                value,
+            }) => format!(
+                "{}: coordinate {} is not finite ({value})",
+                names.vertex(*vertex),
+                ["x", "y", "z"].get(*axis).copied().unwrap_or("?")
+            ),
+            EvalError::Hinge {
+                vertices, source, ..
+            } => format!("{}: {source}", hinge(vertices)),
+            EvalError::NonFiniteEnergy {
+                vertices, theta, ..
+            } => format!(
+                "{}: the energy is not finite at θ = {theta}",
+                hinge(vertices)
+            ),
+            EvalError::Triangle {
+                triangle,
+                vertices,
+                source,
+            } => format!(
+                "{} (vertices {}): {source}",
+                names.triangle(*triangle),
+                list(vertices)
+            ),
+            EvalError::AtElement {
+                energy,
+                element,
+                message,
+            } => {
+                let at = match element {
+                    ElementRef::Vertex(v) => names.vertex(*v),
+                    ElementRef::Edge(e) => format!(
+                        "the edge between vertices {}",
+                        list(e).replace(", ", " and ")
+                    ),
+                    ElementRef::Triangle { triangle, vertices } => format!(
+                        "{} (vertices {})",
+                        names.triangle(*triangle),
+                        list(vertices)
+                    ),
+                };
+                format!("{energy}, {at}: {message}")
+            }
+            other => other.to_string(),
+        }
+    }
 }
 
 /// Reading or writing a Wavefront OBJ file failed.

@@ -145,7 +145,10 @@ pub mod psi;
 pub mod shapes;
 pub mod topology;
 
-pub use error::{DegenerateTriangle, EvalError, HingeSide, MeshError, ObjError, StencilError};
+pub use error::{
+    DegenerateTriangle, ElementNames, ElementRef, EvalError, HingeSide, MeshError, ObjError,
+    StencilError,
+};
 pub use mesh::TriMesh;
 pub use topology::{Edge, Hinge, Topology};
 

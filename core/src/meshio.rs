@@ -19,7 +19,7 @@ use std::path::Path;
 use nalgebra::Vector3;
 use thiserror::Error;
 
-use crate::error::MeshError;
+use crate::error::{ElementNames, MeshError};
 use crate::mesh::TriMesh;
 use crate::topology::Topology;
 
@@ -91,9 +91,7 @@ pub struct MeshFile {
     pub uvs: Vec<Option<crate::anisotropy::TriangleUv>>,
     /// The file's name, as given to the reader (for messages).
     name: String,
-    /// The line of each vertex and face record (empty for a binary PLY).
-    vertex_lines: Vec<usize>,
-    face_lines: Vec<usize>,
+    numbering: FileNumbering,
 }
 
 impl MeshFile {
@@ -101,7 +99,14 @@ impl MeshFile {
     /// numbering: vertices and faces counted as the format counts them (OBJ from 1, OFF and PLY from 0), with
     /// their lines where the file is text, a fanned polygon named by its face.
     pub fn describe(&self, e: &MeshError) -> String {
-        self.numbering().describe(e, self.mesh.n_vertices())
+        self.numbering
+            .describe_mesh_error(e, self.mesh.n_vertices())
+    }
+
+    /// How the file counts vertices and faces: pass it to [`crate::EvalError::describe`] to tell an
+    /// evaluation's error about this mesh in the file's numbering.
+    pub fn numbering(&self) -> &FileNumbering {
+        &self.numbering
     }
 
     /// The hinge topology of the file's mesh ([`Topology::new`]). A mesh file may hold triangles no hinge
@@ -119,15 +124,6 @@ impl MeshFile {
                 source,
             }
         })
-    }
-
-    fn numbering(&self) -> Numbering<'_> {
-        Numbering {
-            format: self.format,
-            face_of_triangle: &self.face_of_triangle,
-            vertex_lines: &self.vertex_lines,
-            face_lines: &self.face_lines,
-        }
     }
 }
 
@@ -262,6 +258,12 @@ pub fn read_mesh_from(
         });
     }
     let n_vertices = raw.positions.len();
+    let numbering = FileNumbering {
+        format,
+        face_of_triangle: face_of_triangle.clone(),
+        vertex_lines: raw.vertex_lines,
+        face_lines: raw.face_lines,
+    };
     match TriMesh::new(raw.positions, triangles) {
         Ok(mesh) => Ok(MeshFile {
             mesh,
@@ -270,35 +272,29 @@ pub fn read_mesh_from(
             face_of_triangle,
             uvs,
             name: name.to_string(),
-            vertex_lines: raw.vertex_lines,
-            face_lines: raw.face_lines,
+            numbering,
         }),
-        Err(source) => {
-            let numbering = Numbering {
-                format,
-                face_of_triangle: &face_of_triangle,
-                vertex_lines: &raw.vertex_lines,
-                face_lines: &raw.face_lines,
-            };
-            Err(MeshFileError::Mesh {
-                path: name.to_string(),
-                format,
-                message: numbering.describe(&source, n_vertices),
-                source,
-            })
-        }
+        Err(source) => Err(MeshFileError::Mesh {
+            path: name.to_string(),
+            format,
+            message: numbering.describe_mesh_error(&source, n_vertices),
+            source,
+        }),
     }
 }
 
-/// Translates mesh errors into a file's numbering.
-struct Numbering<'a> {
+/// How a mesh file counts its vertices and faces (OBJ from 1, OFF and PLY from 0; the line of each record in
+/// a text file; the face a fanned polygon's triangles come from): [`MeshFile::numbering`]. As an
+/// [`ElementNames`] it tells errors about the mesh in the file's terms ([`crate::EvalError::describe`]).
+#[derive(Debug, Clone)]
+pub struct FileNumbering {
     format: MeshFormat,
-    face_of_triangle: &'a [usize],
-    vertex_lines: &'a [usize],
-    face_lines: &'a [usize],
+    face_of_triangle: Vec<usize>,
+    vertex_lines: Vec<usize>,
+    face_lines: Vec<usize>,
 }
 
-impl Numbering<'_> {
+impl ElementNames for FileNumbering {
     fn vertex(&self, v: usize) -> String {
         let n = v + self.format.first_index();
         match self.vertex_lines.get(v) {
@@ -307,11 +303,11 @@ impl Numbering<'_> {
         }
     }
 
-    fn vertex_number(&self, v: usize) -> usize {
-        v + self.format.first_index()
+    fn vertex_number(&self, v: usize) -> String {
+        (v + self.format.first_index()).to_string()
     }
 
-    fn face(&self, t: usize) -> String {
+    fn triangle(&self, t: usize) -> String {
         let f = self.face_of_triangle.get(t).copied().unwrap_or(t);
         let n = f + self.format.first_index();
         match self.face_lines.get(f) {
@@ -319,8 +315,29 @@ impl Numbering<'_> {
             None => format!("face {n}"),
         }
     }
+}
 
-    fn describe(&self, e: &MeshError, n_vertices: usize) -> String {
+impl FileNumbering {
+    /// The format whose numbering this is.
+    pub fn format(&self) -> MeshFormat {
+        self.format
+    }
+
+    /// What a message in this numbering ends with: `(OBJ numbering: from 1)`.
+    pub fn note(&self) -> String {
+        format!(
+            "({} numbering: from {})",
+            self.format.name(),
+            self.format.first_index()
+        )
+    }
+
+    fn face(&self, t: usize) -> String {
+        self.triangle(t)
+    }
+
+    /// A [`MeshError`] about the file's mesh of `n_vertices` vertices, in the file's numbering.
+    pub fn describe_mesh_error(&self, e: &MeshError, n_vertices: usize) -> String {
         let xyz = |a: usize| ["x", "y", "z"].get(a).copied().unwrap_or("?");
         match e {
             MeshError::IndexOutOfRange {

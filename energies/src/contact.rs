@@ -27,11 +27,11 @@
 
 use std::sync::Arc;
 
-use hinge_core::EvalError;
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_core::pattern::SymmetricPattern;
+use hinge_core::{ElementRef, EvalError};
 
 use crate::motion::Motion;
 
@@ -263,8 +263,9 @@ impl Energy for Contact {
                         continue;
                     }
                     if !(len > 0.0) {
-                        return Err(EvalError::Element {
-                            element: format!("contact of vertex {i}"),
+                        return Err(EvalError::AtElement {
+                            energy: "contact".into(),
+                            element: ElementRef::Vertex(i),
                             message: "the vertex is at the sphere's centre: the contact normal is undefined".into(),
                         });
                     }

@@ -39,7 +39,7 @@ use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
 use hinge_core::pattern::SymmetricPattern;
-use hinge_core::{EvalError, TriMesh};
+use hinge_core::{ElementRef, EvalError, TriMesh};
 
 /// The co-rotational membrane over every triangle of a mesh.
 #[derive(Debug, Clone)]
@@ -154,9 +154,13 @@ impl CorotationalMembrane {
 }
 
 fn degenerate(ti: usize, t: &[usize; 3], what: &str) -> EvalError {
-    EvalError::Element {
-        element: format!("triangle {ti} (vertices {}, {}, {})", t[0], t[1], t[2]),
-        message: format!("{what}: the co-rotational membrane's rotation is undefined"),
+    EvalError::AtElement {
+        energy: "corotational-membrane".into(),
+        element: ElementRef::Triangle {
+            triangle: ti,
+            vertices: *t,
+        },
+        message: format!("the triangle {what}: its rotation is undefined"),
     }
 }
 

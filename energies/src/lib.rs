@@ -191,8 +191,9 @@ pub(crate) mod util {
             .enumerate()
             .find(|(_, m)| !(**m >= 0.0 && m.is_finite()))
         {
-            Some((i, m)) => Err(EvalError::Element {
-                element: format!("vertex {i}"),
+            Some((i, m)) => Err(EvalError::AtElement {
+                energy: "masses".into(),
+                element: hinge_core::ElementRef::Vertex(i),
                 message: format!("mass {m} must be finite and non-negative"),
             }),
             None => Ok(()),
@@ -235,9 +236,13 @@ pub(crate) mod util {
                     .try_inverse()
                     .map(|m| m.transpose())
                     .filter(|m| area > 0.0 && m.iter().all(|v| v.is_finite()))
-                    .ok_or_else(|| EvalError::Element {
-                        element: format!("triangle {ti} (vertices {}, {}, {})", t[0], t[1], t[2]),
-                        message: format!("{energy}: the rest triangle has no area"),
+                    .ok_or_else(|| EvalError::AtElement {
+                        energy: energy.to_string(),
+                        element: hinge_core::ElementRef::Triangle {
+                            triangle: ti,
+                            vertices: *t,
+                        },
+                        message: "the rest triangle has no area".into(),
                     })?;
                 let b = [
                     Vector2::new(-1.0, -1.0),

@@ -18,7 +18,7 @@ use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_core::pattern::SymmetricPattern;
-use hinge_core::{EvalError, Topology, TriMesh};
+use hinge_core::{ElementRef, EvalError, Topology, TriMesh};
 
 use crate::util::{same_size, slot};
 
@@ -141,8 +141,9 @@ impl Energy for MassSpring {
             let l = d.norm();
             let big_l = self.rest_length[e];
             if !(l > 0.0) || !l.is_finite() {
-                return Err(EvalError::Element {
-                    element: format!("spring on edge ({i}, {j})"),
+                return Err(EvalError::AtElement {
+                    energy: self.name().to_string(),
+                    element: ElementRef::Edge([i, j]),
                     message: format!("length {l}: its direction is undefined"),
                 });
             }

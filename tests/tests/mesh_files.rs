@@ -416,3 +416,113 @@ fn random_bytes_never_panic() {
     }
     assert!(errors > samples.len() / 2, "{errors} of {}", samples.len());
 }
+
+/// Evaluates `energy` (on its own) at `x` and returns its error.
+fn eval_error(
+    energy: Box<dyn hinge_core::energy::Energy>,
+    x: &[Vector3<f64>],
+) -> hinge_core::EvalError {
+    use hinge_core::bending::{Parallelism, Request};
+    let mut system = hinge_core::energy::System::new(x.len(), vec![energy]).unwrap();
+    system
+        .evaluate(x, Request::ALL, Parallelism::Sequential)
+        .unwrap_err()
+}
+
+#[test]
+fn evaluation_errors_name_elements_as_the_mesh_file_does() {
+    use hinge_core::bending::{BendingModel, Method};
+    use hinge_core::energy::HingeTerm;
+    use hinge_core::psi::DiscreteShells;
+    use hinge_energies::contact::{Contact, Obstacle};
+    use hinge_energies::corotational::CorotationalMembrane;
+    use hinge_energies::spring::MassSpring;
+    // Two quads (fanned: face 1 → triangles 0, 1; face 2 → 2, 3) and a triangle (face 3 → triangle 4),
+    // with comment lines, so that neither vertices nor faces are numbered as the mesh numbers them.
+    let text = "# a strip\nv 0 0 0\nv 1 0 0\nv 2 0 0\n# row 2\nv 0 1 0\nv 1 1 0.2\nv 2 1 0\nv 1 2 0\n\
+                f 1 2 5 4\nf 2 3 6 5\nf 4 5 7\n";
+    let file = read(text.as_bytes(), MeshFormat::Obj).unwrap();
+    let names = file.numbering();
+    assert_eq!(names.note(), "(OBJ numbering: from 1)");
+    let rest = file.mesh.clone();
+    assert_eq!(rest.triangles()[4], [3, 4, 6]);
+    let x0 = rest.positions().to_vec();
+    // A contact whose sphere is centred on mesh vertex 4 (OBJ vertex 5, line 7).
+    let contact = Contact::new(
+        x0.len(),
+        Obstacle::Sphere {
+            center: x0[4],
+            radius: 0.1,
+        },
+        10.0,
+        0.01,
+    )
+    .unwrap();
+    let e = eval_error(Box::new(contact), &x0);
+    assert!(e.to_string().starts_with("contact, vertex 4: "), "{e}");
+    assert!(
+        e.describe(names)
+            .starts_with("contact, vertex 5 (line 7): the vertex is at the sphere's centre"),
+        "{}",
+        e.describe(names)
+    );
+    // A spring of zero length: mesh vertex 6 moved onto 4.
+    let mut x = x0.clone();
+    x[6] = x[4];
+    let e = eval_error(Box::new(MassSpring::new(&rest, 1.0).unwrap()), &x);
+    let d = e.describe(names);
+    assert!(
+        d.contains("the edge between vertices 5 and 7")
+            || d.contains("the edge between vertices 7 and 5"),
+        "{d}"
+    );
+    // Triangle 4 (face 3, line 12) collapsed onto a line, for the co-rotational membrane; then triangle 1,
+    // the second half of the quad on line 10, named by its face.
+    let mut x = x0.clone();
+    x[6] = x[3] * 0.3 + x[4] * 0.7;
+    let e = eval_error(Box::new(CorotationalMembrane::new(&rest, 1.0).unwrap()), &x);
+    assert!(
+        e.to_string().contains("triangle 4 (vertices 3, 4, 6)"),
+        "{e}"
+    );
+    let d = e.describe(names);
+    assert!(
+        d.starts_with(
+            "corotational-membrane, face 3 (line 12) (vertices 4, 5, 7): the triangle is collapsed"
+        ),
+        "{d}"
+    );
+    let mut x = x0.clone();
+    x[3] = x[0] * 0.4 + x[4] * 0.6;
+    let e = eval_error(Box::new(CorotationalMembrane::new(&rest, 1.0).unwrap()), &x);
+    let d = e.describe(names);
+    assert!(d.contains("face 1 (line 10) (vertices 1, 5, 4)"), "{d}");
+    // The same collapse for a hinge energy: the degenerate triangle or hinge, in the file's numbering.
+    let bending = HingeTerm::new(
+        "bending",
+        BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+        Method::Refactored,
+    );
+    let e = eval_error(Box::new(bending), &x);
+    let d = e.describe(names);
+    assert!(
+        d.contains("face 1 (line 10) (vertices 1, 5, 4)")
+            || d.contains("the hinge on the edge between vertices"),
+        "{d}"
+    );
+    assert_ne!(d, e.to_string());
+    // A NaN coordinate names the vertex and its line (the bending model checks positions first).
+    let mut x = x0.clone();
+    x[4].y = f64::NAN;
+    let bending = HingeTerm::new(
+        "bending",
+        BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+        Method::Refactored,
+    );
+    let e = eval_error(Box::new(bending), &x);
+    let d = e.describe(names);
+    assert!(
+        d.contains("vertex 5 (line 7): coordinate y is not finite"),
+        "{d} / {e}"
+    );
+}
