@@ -301,19 +301,25 @@ pub enum SolverError {
 }
 
 impl NewtonStats {
-    /// Adds another solve's counters and times (iterations, halvings, factorizations, seconds; the largest
-    /// shift; the norms are appended).
-    pub fn absorb(&mut self, other: &NewtonStats) {
+    /// Adds another solve's counters and times, but not its norms (a failed attempt before this solve: its
+    /// work counts, its gradient norms are not this solve's).
+    pub fn absorb_counts(&mut self, other: &NewtonStats) {
         self.iterations += other.iterations;
         self.line_search_steps += other.line_search_steps;
         self.factorizations += other.factorizations;
         self.definite_iterations += other.definite_iterations;
-        self.gradient_norms.extend_from_slice(&other.gradient_norms);
-        self.step_norms.extend_from_slice(&other.step_norms);
         self.max_shift = self.max_shift.max(other.max_shift);
         self.eval_seconds += other.eval_seconds;
         self.factor_seconds += other.factor_seconds;
         self.solve_seconds += other.solve_seconds;
+    }
+
+    /// Adds another solve's counters and times (iterations, halvings, factorizations, seconds; the largest
+    /// shift; the norms are appended).
+    pub fn absorb(&mut self, other: &NewtonStats) {
+        self.absorb_counts(other);
+        self.gradient_norms.extend_from_slice(&other.gradient_norms);
+        self.step_norms.extend_from_slice(&other.step_norms);
     }
 }
 
@@ -1005,7 +1011,9 @@ impl ImplicitEuler {
     }
 
     /// One step of [`ImplicitEuler::dt`]: minimises the incremental potential from `x̂ = x + Δt v` (pinned
-    /// vertices stay put and keep zero velocity), ends the step for the energies at the new positions
+    /// vertices stay put and keep zero velocity; when the energies cannot be evaluated at `x̂` — a hinge of a
+    /// tan energy carried through its pole, a vertex onto a sphere's centre — from `x` instead, the counts
+    /// of both attempts summed), ends the step for the energies at the new positions
     /// ([`System::end_step`]: plastic rest angles), then sets `v = (x_new − x)/Δt`. On failure `x` and `v` are
     /// unchanged, and the system's step state (damping's θ_prev, drag's previous positions) is set back to
     /// that of the last accepted step (before any step was accepted, it stays as set for this attempt's
@@ -1059,8 +1067,22 @@ impl ImplicitEuler {
                     dt,
                 };
                 let mut next = x_hat;
-                let stats = self.newton.minimize(system, &mut next, Some(&inertia))?;
-                Ok((next, stats))
+                match self.newton.minimize(system, &mut next, Some(&inertia)) {
+                    Ok(stats) => Ok((next, stats)),
+                    // x̂ itself cannot be evaluated (a hinge carried through the pole of a tan energy, a
+                    // vertex onto a sphere's centre): the same step from x, which the last step accepted
+                    // (pinned vertices at their targets), before giving up on this step size.
+                    Err(SolverError::Eval { stats: first, .. }) if first.iterations == 0 => {
+                        let mut start = x.to_vec();
+                        for &pv in self.pins.vertices() {
+                            start[pv] = targets.map_or(x[pv], |t| t[pv]);
+                        }
+                        let mut stats = self.newton.minimize(system, &mut start, Some(&inertia))?;
+                        stats.absorb_counts(&first);
+                        Ok((start, stats))
+                    }
+                    Err(e) => Err(e),
+                }
             });
         // An accepted step ends for the energies (plastic rest angles follow it); a rejected one never does.
         let result = result.and_then(|(next, stats)| match system.end_step(&next) {

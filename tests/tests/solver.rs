@@ -1201,3 +1201,106 @@ fn remembered_shift_saves_factorizations_and_off_is_history_independent() {
         assert!(d <= 1e-6, "different equilibria: {d:e}");
     }
 }
+
+#[test]
+fn a_step_whose_prediction_cannot_be_evaluated_starts_from_the_last_state() {
+    use hinge_energies::contact::{Contact, Obstacle};
+    // An irregular, renumbered sheet (z = 0) with springs and bending; one vertex moves straight down at
+    // 2 m/s, so that x̂ = x + Δt v (Δt = 1/4: every number exact) lands exactly on a sphere's centre 0.5 m
+    // below it, where the contact normal is undefined. The step must not fail for that: Newton starts from
+    // x instead (before, the step failed and only its halves went through).
+    let rest = hinge_core::shapes::irregular_sheet(7, 6, 3).unwrap();
+    let n = rest.n_vertices();
+    let k = (0..n)
+        .min_by(|&a, &b| {
+            let d = |v: usize| (rest.positions()[v] - Vector3::new(0.5, 0.5, 0.0)).norm();
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap();
+    let x = rest.positions().to_vec();
+    let centre = x[k] - Vector3::new(0.0, 0.0, 0.5);
+    let system = || {
+        let mut terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(MassSpring::new(&rest, 50.0).unwrap()),
+            Box::new(HingeTerm::new(
+                "bending",
+                BendingModel::new(&rest, DiscreteShells { k: 0.01 }).unwrap(),
+                Method::Refactored,
+            )),
+        ];
+        terms.push(Box::new(
+            Contact::new(
+                n,
+                Obstacle::Sphere {
+                    center: centre,
+                    radius: 0.3,
+                },
+                1e3,
+                0.01,
+            )
+            .unwrap(),
+        ));
+        System::new(n, terms).unwrap()
+    };
+    let dt = 0.25;
+    let mut v = vec![Vector3::zeros(); n];
+    v[k] = Vector3::new(0.0, 0.0, -2.0);
+    assert_eq!(x[k] + v[k] * dt, centre, "x̂ is the centre, bitwise");
+    let masses = lumped_masses(&rest, 0.5);
+    let pins = Pins::new(n, vec![]).unwrap();
+    let mut sys = system();
+    let x_hat: Vec<_> = x.iter().zip(&v).map(|(p, w)| p + w * dt).collect();
+    let at_centre = sys
+        .evaluate(&x_hat, Request::ALL, Parallelism::Sequential)
+        .unwrap_err();
+    assert!(
+        at_centre.to_string().contains("sphere's centre"),
+        "{at_centre}"
+    );
+    let mut stepper = ImplicitEuler::new(
+        &sys,
+        dt,
+        masses.clone(),
+        pins.clone(),
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let (mut x1, mut v1) = (x.clone(), v.clone());
+    let fs = stepper
+        .advance(&mut sys, &mut x1, &mut v1, SubstepPolicy::default())
+        .unwrap();
+    assert_eq!(
+        (fs.substeps, fs.failed_attempts),
+        (1, 0),
+        "one step, no halving"
+    );
+    // Independently: Newton on the same incremental potential, started at x.
+    let mut reference = system();
+    let mut newton = Newton::new(
+        &reference,
+        &pins,
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let inertia = Inertia { masses, x_hat, dt };
+    let mut y = x.clone();
+    let stats = newton
+        .minimize(&mut reference, &mut y, Some(&inertia))
+        .unwrap();
+    assert_eq!(x1, y, "the step from x, bitwise");
+    assert_eq!(fs.newton.iterations, stats.iterations);
+    assert!(fs.max_final_gradient_norm <= NewtonParams::default().gradient_tolerance);
+    // The vertex moved down, held back by its springs, short of the sphere (its top is 0.2 m below);
+    // v = (x1 − x)/Δt.
+    let clearance = (x1[k] - centre).norm() - 0.3;
+    assert!(
+        x1[k].z < x[k].z - 0.01 && clearance > 0.1,
+        "z {} clearance {clearance}",
+        x1[k].z
+    );
+    for i in 0..n {
+        assert_eq!(v1[i], (x1[i] - x[i]) / dt);
+    }
+}
