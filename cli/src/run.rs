@@ -381,8 +381,22 @@ pub fn equilibrium_named(
     let mut x = rest.positions().to_vec();
     let (parameter, stages) = membrane_stages(scene, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
-    let stats = minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages)
-        .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
+    let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
+    let stats = minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages).map_err(
+        |e| {
+            let hint = if unsupported
+                && matches!(
+                    e,
+                    SolverError::NotConverged { .. } | SolverError::LineSearch { .. }
+                ) {
+                "; no vertex is pinned, so under gravity the mesh rests only where obstacles hold it \
+                 still (frictionless contact cannot hold it on a curved obstacle's side: it slides off)"
+            } else {
+                ""
+            };
+            format!("static solve: {}{hint}", solver_message(&e, names))
+        },
+    )?;
     let mut summary = RunSummary {
         frames: 0,
         newton_iterations: stats.iterations,

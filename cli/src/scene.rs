@@ -313,7 +313,8 @@ pub struct ObstacleSpec {
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PinSpec {
-    /// Vertex indices.
+    /// Vertex indices, from 0 in the mesh's vertex order (for a mesh file, the order of its vertex records:
+    /// OBJ vertex N, which OBJ counts from 1, is N − 1 here).
     #[serde(default)]
     pub vertices: Vec<usize>,
     /// Pin every vertex with rest x ≤ this.
@@ -330,7 +331,8 @@ pub struct PinSpec {
 #[derive(Debug, Clone, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct PinGroupSpec {
-    /// Vertex indices.
+    /// Vertex indices, from 0 in the mesh's vertex order (for a mesh file, the order of its vertex records:
+    /// OBJ vertex N, which OBJ counts from 1, is N − 1 here).
     #[serde(default)]
     pub vertices: Vec<usize>,
     /// Also every vertex with rest x ≥ this.

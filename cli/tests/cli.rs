@@ -862,6 +862,25 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
         "the last good frame is written"
     );
     assert!(!out.join(format!("frame_{failed:04}.obj")).exists());
+    // A static solve with nothing pinned under gravity (the drape: a frictionless sphere cannot hold the
+    // cloth) fails on one line that says why.
+    let o = hinge(&[
+        "run",
+        "drape",
+        "--static",
+        "--no-frames",
+        "--resolution",
+        "8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("static solve: no convergence") && err.contains("no vertex is pinned"),
+        "{err}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
