@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Newton iteration counts of a scene over an ensemble of nearby starts, to tell a method's effect from the
+# trajectory's sensitivity (a change to Newton changes how the cloth folds, and so the counts, by up to ±15 %
+# for reasons unrelated to the change). Runs the scene five times with its mesh origin's z moved by
+# 0, ±1e-5, 2e-5, 3e-5 m and prints "iterations/factorizations" of each run, sorted (the middle one is the
+# median). Extra arguments are environment assignments for the runs (say, an experiment's switch).
+#
+#   cargo build --release -p hinge-cli
+#   target/release/hinge scenes show drape > /tmp/drape.toml
+#   docs/newton/ensemble.sh /tmp/drape.toml            # 742/1180 749/1169 757/1203 759/1187 771/1213
+#
+# The scene must have a line `origin = [X, Y, Z]` under [mesh] (the built-in drape and anisotropic-drape do).
+set -euo pipefail
+scene=$1
+shift
+hinge=${HINGE:-$(dirname "$0")/../../target/release/hinge}
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+results=()
+for dz in 0 1e-5 2e-5 -1e-5 3e-5; do
+  python3 - "$scene" "$dz" > "$tmp/scene.toml" <<'PY'
+import re, sys
+text = open(sys.argv[1]).read()
+def moved(m):
+    x, y, z = (float(v) for v in m.group(1).split(","))
+    return f"origin = [{x!r}, {y!r}, {z + float(sys.argv[2])!r}]"
+new, n = re.subn(r"^origin = \[([^\]]*)\]", moved, text, count=1, flags=re.M)
+if n != 1:
+    sys.exit("the scene has no `origin = [x, y, z]` line")
+print(new, end="")
+PY
+  line=$(env "$@" "$hinge" run "$tmp/scene.toml" --no-frames --out "$tmp/out" | grep '^done')
+  it=$(sed 's/.*frames, \([0-9]*\) Newton.*/\1/' <<< "$line")
+  fa=$(sed 's/.*steps, \([0-9]*\) factorizations.*/\1/' <<< "$line")
+  results+=("$it/$fa")
+done
+printf '%s\n' "${results[@]}" | sort -n | tr '\n' ' '
+echo
