@@ -313,10 +313,14 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
     } else {
         parse_params(energy, &args.params)?
     };
-    let rest = hinge_cli::files::read(rest_path)?;
-    let deformed = match &args.deformed {
-        Some(p) => crate::read_deformed(&rest, p)?,
-        None => rest.clone(),
+    let (rest, rest_names) = hinge_cli::files::read_numbered(rest_path)?;
+    // An evaluation error names vertices and faces as the file of the evaluated positions counts them.
+    let (deformed, names, label) = match &args.deformed {
+        Some(p) => {
+            let (d, names) = crate::read_deformed(&rest, p)?;
+            (d, names, p.display().to_string())
+        }
+        None => (rest.clone(), rest_names, rest_path.display().to_string()),
     };
     let (threads, warning) = hinge_cli::limits::threads(args.threads)?;
     if let Some(w) = warning {
@@ -347,7 +351,7 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
     };
     let e = pool
         .install(|| system.evaluate(deformed.positions(), Request::ALL, Parallelism::Rayon))
-        .map_err(|e| format!("deformed mesh: {e}"))?;
+        .map_err(|e| format!("{label}: {} {}", e.describe(&names), names.note()))?;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let write =
         |name: &str, f: &dyn Fn(std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {

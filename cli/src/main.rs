@@ -164,9 +164,13 @@ fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
     }
 }
 
-/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY) with the same triangles.
-pub(crate) fn read_deformed(rest: &TriMesh, path: &std::path::Path) -> Result<TriMesh, String> {
-    let d = hinge_cli::files::read(path)?;
+/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY) with the same triangles, with how
+/// that file counts its vertices and faces.
+pub(crate) fn read_deformed(
+    rest: &TriMesh,
+    path: &std::path::Path,
+) -> Result<(TriMesh, hinge_core::meshio::FileNumbering), String> {
+    let (d, names) = hinge_cli::files::read_numbered(path)?;
     if d.triangles() != rest.triangles() {
         return Err(format!(
             "{}: its triangles differ from the rest mesh's",
@@ -174,6 +178,7 @@ pub(crate) fn read_deformed(rest: &TriMesh, path: &std::path::Path) -> Result<Tr
         ));
     }
     rest.with_positions(d.into_parts().0)
+        .map(|m| (m, names))
         .map_err(|e| format!("{}: {e}", path.display()))
 }
 
@@ -190,7 +195,7 @@ fn stats(
         ),
     };
     let current: TriMesh = match (&deformed, &rest) {
-        (Some(p), _) => read_deformed(&mesh, p)?,
+        (Some(p), _) => read_deformed(&mesh, p)?.0,
         (None, Some(_)) => mesh.clone(),
         (None, None) => mesh
             .with_positions(grid::wave(mesh.positions()))

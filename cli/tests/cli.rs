@@ -1506,6 +1506,32 @@ fn mesh_formats_through_the_command_line() {
             "{err}"
         );
     }
+    // `hinge eval`: a ψ with a pole at the flat state fails at the hinge, named by its vertices as the
+    // file counts them (the evaluated positions' file: here the rest mesh itself).
+    std::fs::write(
+        path("flat.obj"),
+        "# a flat square\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n",
+    )
+    .unwrap();
+    let o = hinge(&[
+        "eval",
+        "--rest",
+        &path("flat.obj"),
+        "--psi",
+        "1/theta",
+        "--out",
+        &path("eval"),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains(
+            "flat.obj: the hinge on the edge between vertices 2 and 3 (wing vertices 1 and 4): the \
+             energy is not finite at θ = 0 (OBJ numbering: from 1)"
+        ),
+        "{err}"
+    );
     let o = hinge(&["run", "drape", "--format", "stl"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
