@@ -111,7 +111,8 @@ pub struct EvalArgs {
     /// Rest mesh (OBJ, OFF or PLY, by extension).
     #[arg(long, required_unless_present = "list_energies")]
     rest: Option<PathBuf>,
-    /// Deformed mesh (a mesh file with the same vertices and faces); default: the rest mesh.
+    /// Deformed mesh (a mesh file with the rest mesh's vertices in its order, and its faces in any order and
+    /// corner rotation); default: the rest mesh.
     #[arg(long)]
     deformed: Option<PathBuf>,
     /// Energy name (see --list-energies).

@@ -248,30 +248,7 @@ pub fn fit_scene(
     keys: &[String],
     options: FitOptions,
 ) -> Result<Fitted, String> {
-    if target.n_vertices() != rest.n_vertices() {
-        return Err(format!(
-            "{target_name}: {} vertices, the scene's mesh has {}",
-            target.n_vertices(),
-            rest.n_vertices()
-        ));
-    }
-    if let Some(t) =
-        (0..rest.n_triangles()).find(|&t| target.triangles().get(t) != rest.triangles().get(t))
-    {
-        return Err(format!(
-            "{target_name}: face {} differs from the scene mesh's ({:?} vs {:?}): not the same topology",
-            t + 1,
-            target.triangles().get(t).map(|f| f.map(|v| v + 1)),
-            rest.triangles()[t].map(|v| v + 1)
-        ));
-    }
-    if target.n_triangles() != rest.n_triangles() {
-        return Err(format!(
-            "{target_name}: {} faces, the scene's mesh has {}",
-            target.n_triangles(),
-            rest.n_triangles()
-        ));
-    }
+    crate::files::check_same_mesh(rest, target, None, target_name)?;
     let b = build(scene, rest, false)?;
     let mut variables = Vec::new();
     for (i, key) in keys.iter().enumerate() {
@@ -470,8 +447,10 @@ pub fn run(args: FitArgs) -> Result<(), String> {
         eprintln!("hinge: {w}");
     }
     let rest = scene.rest_mesh(base.as_deref())?;
-    let target = crate::files::read(&args.target)?;
+    let (target, target_names) = crate::files::read_numbered(&args.target)?;
     let name = args.target.display().to_string();
+    // Checked here too, to name a face that does not fit as the target file counts it.
+    crate::files::check_same_mesh(&rest, &target, Some(&target_names), &name)?;
     let options = FitOptions {
         max_iterations: args.max_iterations,
         smoothness: args.smoothness,

@@ -39,7 +39,8 @@ enum Command {
         /// Rest mesh (OBJ, OFF or PLY, by extension). Default: an N×N unit grid.
         #[arg(long)]
         rest: Option<std::path::PathBuf>,
-        /// Deformed positions (a mesh file with the same vertices and faces). Default: the rest grid under the wave
+        /// Deformed positions (a mesh file with the rest mesh's vertices in its order, its faces in any order and
+        /// corner rotation). Default: the rest grid under the wave
         /// z = 0.1·sin(3x)·cos(2y), or the rest mesh itself when --rest is given.
         #[arg(long)]
         deformed: Option<std::path::PathBuf>,
@@ -164,19 +165,16 @@ fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
     }
 }
 
-/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY) with the same triangles, with how
-/// that file counts its vertices and faces.
+/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY), with how that file counts its
+/// vertices and faces. Only its positions are used: its vertices must be the rest mesh's, in the same
+/// order, and its faces the rest mesh's, in any order and with their corners in any rotation (as another
+/// tool may write them back), else the first face that is not the rest mesh's is named.
 pub(crate) fn read_deformed(
     rest: &TriMesh,
     path: &std::path::Path,
 ) -> Result<(TriMesh, hinge_core::meshio::FileNumbering), String> {
     let (d, names) = hinge_cli::files::read_numbered(path)?;
-    if d.triangles() != rest.triangles() {
-        return Err(format!(
-            "{}: its triangles differ from the rest mesh's",
-            path.display()
-        ));
-    }
+    hinge_cli::files::check_same_mesh(rest, &d, Some(&names), &path.display().to_string())?;
     rest.with_positions(d.into_parts().0)
         .map(|m| (m, names))
         .map_err(|e| format!("{}: {e}", path.display()))
