@@ -13,6 +13,15 @@ fn hinge(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// Runs `hinge` with `args`, which must fail with exit code 1 and one line on stderr; returns that line.
+fn one_line_failure(args: &[&str]) -> String {
+    let o = hinge(args);
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    err
+}
+
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("hinge-cli-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
@@ -864,7 +873,7 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
     assert!(!out.join(format!("frame_{failed:04}.obj")).exists());
     // A static solve with nothing pinned under gravity (the drape: a frictionless sphere cannot hold the
     // cloth) fails on one line that says why.
-    let o = hinge(&[
+    let err = one_line_failure(&[
         "run",
         "drape",
         "--static",
@@ -874,9 +883,6 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
         "--out",
         out.to_str().unwrap(),
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(
         err.contains("static solve: no convergence") && err.contains("no vertex is pinned"),
         "{err}"
@@ -1337,7 +1343,7 @@ fn mesh_formats_through_the_command_line() {
     let square = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0.1\n# faces\n";
     std::fs::write(path("square.obj"), format!("{square}f 1 2 3\nf 2 4 3\n")).unwrap();
     std::fs::write(path("diagonal.obj"), format!("{square}f 1 2 4\nf 1 4 3\n")).unwrap();
-    let o = hinge(&[
+    let err = one_line_failure(&[
         "eval",
         "--rest",
         &path("square.obj"),
@@ -1348,9 +1354,6 @@ fn mesh_formats_through_the_command_line() {
         "--out",
         &path("eval"),
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(
         err.contains(
             "diagonal.obj: face 1 (line 6) (vertices 1, 2, 4) is not a face of the rest mesh"
@@ -1435,10 +1438,7 @@ fn mesh_formats_through_the_command_line() {
                 &path("eval"),
             ],
         ] {
-            let o = hinge(&args);
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
-            assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+            let err = one_line_failure(&args);
             assert!(err.contains(file) && err.contains(words), "{args:?}: {err}");
         }
     }
@@ -1502,16 +1502,13 @@ fn mesh_formats_through_the_command_line() {
     let shown =
         String::from_utf8_lossy(&shown.stdout).replace("cells = [30, 30]", "obj = \"three.obj\"");
     std::fs::write(path("three.toml"), &shown).unwrap();
-    let o = hinge(&[
+    let err = one_line_failure(&[
         "run",
         &path("three.toml"),
         "--no-frames",
         "--out",
         out.to_str().unwrap(),
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(
         err.contains("three.obj") && err.contains("face 3 (line 9)"),
         "{err}"
@@ -1535,10 +1532,7 @@ fn mesh_formats_through_the_command_line() {
         if statics {
             args.push("--static");
         }
-        let o = hinge(&args);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        let err = one_line_failure(&args);
         assert!(
             err.contains("contact, vertex 5 (line 5): the vertex is at the sphere's centre")
                 && err.contains("(OBJ numbering: from 1)"),
@@ -1552,7 +1546,7 @@ fn mesh_formats_through_the_command_line() {
         "# a flat square\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n",
     )
     .unwrap();
-    let o = hinge(&[
+    let err = one_line_failure(&[
         "eval",
         "--rest",
         &path("flat.obj"),
@@ -1561,9 +1555,6 @@ fn mesh_formats_through_the_command_line() {
         "--out",
         &path("eval"),
     ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(
         err.contains(
             "flat.obj: the hinge on the edge between vertices 2 and 3 (wing vertices 1 and 4): the \

@@ -498,12 +498,14 @@ fn evaluation_errors_name_elements_as_the_mesh_file_does() {
     let d = e.describe(names);
     assert!(d.contains("face 1 (line 10) (vertices 1, 5, 4)"), "{d}");
     // The same collapse for a hinge energy: the degenerate triangle or hinge, in the file's numbering.
-    let bending = HingeTerm::new(
-        "bending",
-        BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
-        Method::Refactored,
-    );
-    let e = eval_error(Box::new(bending), &x);
+    let bending = || {
+        Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        ))
+    };
+    let e = eval_error(bending(), &x);
     let d = e.describe(names);
     assert!(
         d.contains("face 1 (line 10) (vertices 1, 5, 4)")
@@ -514,12 +516,7 @@ fn evaluation_errors_name_elements_as_the_mesh_file_does() {
     // A NaN coordinate names the vertex and its line (the bending model checks positions first).
     let mut x = x0.clone();
     x[4].y = f64::NAN;
-    let bending = HingeTerm::new(
-        "bending",
-        BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
-        Method::Refactored,
-    );
-    let e = eval_error(Box::new(bending), &x);
+    let e = eval_error(bending(), &x);
     let d = e.describe(names);
     assert!(
         d.contains("vertex 5 (line 7): coordinate y is not finite"),
