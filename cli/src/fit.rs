@@ -17,9 +17,10 @@
 
 use std::path::{Path, PathBuf};
 
-use hinge_core::TriMesh;
+use hinge_core::meshio::FileNumbering;
 use hinge_core::nalgebra::Vector3;
-use hinge_solver::adjoint::{Fit, FitOptions, FitVariable, Link, TargetLoss};
+use hinge_core::{ElementNames, TriMesh};
+use hinge_solver::adjoint::{AdjointError, Fit, FitOptions, FitVariable, Link, TargetLoss};
 use hinge_solver::newton::{Newton, NewtonParams};
 use hinge_solver::statics::continued_start;
 
@@ -248,6 +249,23 @@ pub fn fit_scene(
     keys: &[String],
     options: FitOptions,
 ) -> Result<Fitted, String> {
+    fit_scene_named(scene, rest, target, target_name, keys, options, None)
+}
+
+/// [`fit_scene`], with errors about the mesh (an evaluation or equilibrium that fails at a vertex, a
+/// triangle, a hinge) told in `names`, the scene's mesh file's numbering, when given.
+///
+/// # Errors
+/// As [`fit_scene`].
+pub fn fit_scene_named(
+    scene: &Scene,
+    rest: &TriMesh,
+    target: &TriMesh,
+    target_name: &str,
+    keys: &[String],
+    options: FitOptions,
+    names: Option<&FileNumbering>,
+) -> Result<Fitted, String> {
     crate::files::check_same_mesh(rest, target, None, target_name)?;
     let b = build(scene, rest, false)?;
     let mut variables = Vec::new();
@@ -281,11 +299,11 @@ pub fn fit_scene(
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
-    let (parameter, stages) =
-        crate::run::membrane_stages(scene, rest, &mut system).map_err(|e| e.to_string())?;
+    let (parameter, stages) = crate::run::membrane_stages(scene, rest, &mut system)
+        .map_err(|e| crate::run::solver_message(&e, names))?;
     let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
-    let mut fit =
-        Fit::new(&system, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;
+    let mut fit = Fit::new(&system, &pins, &mut newton, variables, options)
+        .map_err(|e| fit_message(&e, names))?;
     fit.observe(|p| {
         eprintln!(
             "fit: iteration {:3}: loss {:.6e} ({} equilibria)",
@@ -294,7 +312,7 @@ pub fn fit_scene(
     });
     let r = fit
         .run(&mut system, &mut x, &mut |x, g| loss.evaluate(x, g))
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| fit_message(&e, names))?;
     eprintln!(
         "fit: stopped ({}): loss {:.3e} → {:.3e} in {} iterations, {} equilibria",
         r.stop, r.initial_loss, r.loss, r.iterations, r.equilibria
@@ -308,6 +326,24 @@ pub fn fit_scene(
         x: r.x,
         stop: r.stop,
     })
+}
+
+/// A fit's error; with `names` (a mesh file's numbering), an evaluation or equilibrium error names its
+/// vertices and faces as the file counts them.
+fn fit_message(e: &AdjointError, names: Option<&FileNumbering>) -> String {
+    match (e, names) {
+        (AdjointError::Eval(e), Some(n)) => format!("{} {}", e.describe(n), n.note()),
+        (AdjointError::Equilibrium(e), Some(n)) => {
+            format!("equilibrium: {}", crate::run::solver_message(e, Some(n)))
+        }
+        (AdjointError::NotMinimum { vertex, .. }, Some(n)) => format!(
+            "the exact Hessian at the equilibrium is not positive definite (at {}): the state is not a \
+             strict minimum, its sensitivities are undefined {}",
+            n.vertex(*vertex),
+            n.note()
+        ),
+        _ => e.to_string(),
+    }
 }
 
 /// The scene's TOML text (a built-in's, or the file's).
@@ -446,7 +482,7 @@ pub fn run(args: FitArgs) -> Result<(), String> {
     if let Some(w) = warning {
         eprintln!("hinge: {w}");
     }
-    let rest = scene.rest_mesh(base.as_deref())?;
+    let (rest, names) = scene.rest_mesh_numbered(base.as_deref())?;
     let (target, target_names) = crate::files::read_numbered(&args.target)?;
     let name = args.target.display().to_string();
     // Checked here too, to name a face that does not fit as the target file counts it.
@@ -466,7 +502,17 @@ pub fn run(args: FitArgs) -> Result<(), String> {
         .num_threads(threads)
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
-    let fitted = pool.install(|| fit_scene(&scene, &rest, &target, &name, &args.fit, options))?;
+    let fitted = pool.install(|| {
+        fit_scene_named(
+            &scene,
+            &rest,
+            &target,
+            &name,
+            &args.fit,
+            options,
+            names.as_ref(),
+        )
+    })?;
     let dir = args
         .out
         .clone()

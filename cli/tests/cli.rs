@@ -1539,6 +1539,22 @@ fn mesh_formats_through_the_command_line() {
             "{err}"
         );
     }
+    // `hinge fit` of that scene (its own mesh as the target) names it the same way.
+    let err = one_line_failure(&[
+        "fit",
+        &centre,
+        "--target",
+        &path("centre.obj"),
+        "--fit",
+        "material.young",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("contact, vertex 5 (line 5): the vertex is at the sphere's centre")
+            && err.contains("(OBJ numbering: from 1)"),
+        "{err}"
+    );
     // `hinge eval`: a ψ with a pole at the flat state fails at the hinge, named by its vertices as the
     // file counts them (the evaluated positions' file: here the rest mesh itself).
     std::fs::write(
