@@ -236,28 +236,14 @@ fn adjacent_hinges(rest: &TriMesh, k: usize) -> Result<Vec<(usize, usize, usize)
     Ok(pairs)
 }
 
-/// Fits `keys` of `scene` (mesh `rest`) so that its static equilibrium matches `target`.
+/// Fits `keys` of `scene` (mesh `rest`) so that its static equilibrium matches `target`. With `names` (the
+/// scene's mesh file's numbering), an evaluation or equilibrium error at a vertex, triangle or hinge is
+/// told as the file counts them.
 ///
 /// # Errors
 /// A one-line message: an unknown or repeated key, a non-positive start of a positive key, a target that
 /// does not match the mesh, an equilibrium that does not converge, keys not separately identifiable.
 pub fn fit_scene(
-    scene: &Scene,
-    rest: &TriMesh,
-    target: &TriMesh,
-    target_name: &str,
-    keys: &[String],
-    options: FitOptions,
-) -> Result<Fitted, String> {
-    fit_scene_named(scene, rest, target, target_name, keys, options, None)
-}
-
-/// [`fit_scene`], with errors about the mesh (an evaluation or equilibrium that fails at a vertex, a
-/// triangle, a hinge) told in `names`, the scene's mesh file's numbering, when given.
-///
-/// # Errors
-/// As [`fit_scene`].
-pub fn fit_scene_named(
     scene: &Scene,
     rest: &TriMesh,
     target: &TriMesh,
@@ -503,7 +489,7 @@ pub fn run(args: FitArgs) -> Result<(), String> {
         .build()
         .map_err(|e| format!("thread pool: {e}"))?;
     let fitted = pool.install(|| {
-        fit_scene_named(
+        fit_scene(
             &scene,
             &rest,
             &target,
@@ -576,6 +562,7 @@ mod tests {
                 "target",
                 &["material.young".to_string()],
                 FitOptions::default(),
+                None,
             )
             .unwrap();
             let y = f.values[0].1[0];

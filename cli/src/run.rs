@@ -341,22 +341,12 @@ pub fn membrane_stages(
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
 /// `static.obj` (or the output's format) and, when asked, its pictures to `out` when given.
 ///
+/// With `names` (the rest mesh file's numbering), an evaluation error names its vertices and faces as the
+/// file counts them.
+///
 /// # Errors
 /// A one-line message with the solver's diagnostics.
 pub fn equilibrium(
-    scene: &Scene,
-    rest: &TriMesh,
-    out: Option<Output<'_>>,
-) -> Result<RunSummary, String> {
-    equilibrium_named(scene, rest, out, None)
-}
-
-/// [`equilibrium`], with an evaluation error's vertices and faces told in `names` (the rest mesh file's
-/// numbering) when given.
-///
-/// # Errors
-/// As [`equilibrium`].
-pub fn equilibrium_named(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
@@ -973,7 +963,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     });
     let frames = scene.frames;
     let summary = if args.statics {
-        pool.install(|| equilibrium_named(&scene, &rest, frames_dir, names))?
+        pool.install(|| equilibrium(&scene, &rest, frames_dir, names))?
     } else {
         pool.install(|| {
             simulate_until(
@@ -1164,7 +1154,7 @@ mod tests {
             scene.material.membrane = membrane.into();
             scene.solver.membrane_continuation = on;
             let rest = scene.rest_mesh(None).unwrap();
-            let s = equilibrium(&scene, &rest, None).unwrap();
+            let s = equilibrium(&scene, &rest, None, None).unwrap();
             assert!(
                 s.final_gradient_norm <= 1e-9,
                 "{on}: {}",

@@ -1062,7 +1062,7 @@ pub fn fit_scene<'py>(
         ..FitOptions::default()
     };
     let r = py
-        .detach(|| hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options))
+        .detach(|| hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options, None))
         .map_err(value_error)?;
     let names: Vec<String> = r.values.iter().map(|(k, _)| k.clone()).collect();
     let values: Vec<Vec<f64>> = r.values.iter().map(|(_, v)| v.clone()).collect();
