@@ -70,7 +70,32 @@ enum Command {
     },
 }
 
+/// Standard output closed or failing (`hinge … | head`, a full disk) makes `println!` panic; this hook turns
+/// that panic into what a Unix tool does instead of a backtrace: a closed pipe ends the process silently with
+/// exit code 141 (128 + SIGPIPE, as a shell reports a tool killed by it), any other write error prints one
+/// line and exits with 1. Every other panic goes to the default hook.
+fn quiet_stdout_failures() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if let Some(reason) = message.strip_prefix("failed printing to stdout: ") {
+            if reason.contains("Broken pipe") || reason.contains("os error 32") {
+                std::process::exit(141);
+            }
+            eprintln!("hinge: cannot write to standard output: {reason}");
+            std::process::exit(1);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
+    quiet_stdout_failures();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

@@ -2573,3 +2573,43 @@ fn fit_recovers_keys_from_static_shapes() {
         assert!(lines[0].contains(expect), "{args:?}: {err}");
     }
 }
+
+/// `hinge … | head` closes standard output early: the process ends silently with 141 (128 + SIGPIPE), as a
+/// tool killed by the signal, not with a panic and a backtrace (which it did before). A write error other
+/// than a closed pipe (a full disk: Linux's /dev/full) is one line and exit code 1.
+#[test]
+fn a_closed_or_full_standard_output_is_not_a_panic() {
+    for args in [
+        &["scenes"][..],
+        &["stats", "--n", "4"],
+        &["run", "twist", "--frames", "2", "--no-frames"],
+    ] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let o = Command::new(env!("CARGO_BIN_EXE_hinge"))
+            .args(args)
+            .stdout(writer)
+            .stderr(std::process::Stdio::piped())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(141), "{args:?}: {err}");
+        assert!(err.is_empty(), "{args:?}: {err}");
+    }
+    let full = Path::new("/dev/full");
+    if cfg!(target_os = "linux") && full.exists() {
+        let out = std::fs::OpenOptions::new().write(true).open(full).unwrap();
+        let o = Command::new(env!("CARGO_BIN_EXE_hinge"))
+            .args(["scenes"])
+            .stdout(out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("hinge: cannot write to standard output"),
+            "{err}"
+        );
+    }
+}

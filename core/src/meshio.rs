@@ -9,6 +9,11 @@
 //! and PLY vertices and faces from 0 (each message says which). A file whose content does not match its
 //! extension, or that has no triangles, is an error saying which format it was read as.
 //!
+//! OBJ as exporters write it: a UTF-8 byte-order mark and CRLF line ends, `#` comments after statements,
+//! lines continued with a trailing `\`, negative (relative) indices, `v/vt/vn` corners; statements other
+//! than `v`, `vt` and `f` (objects, groups, materials, normals, lines) are skipped. OFF may start with a
+//! byte-order mark too.
+//!
 //! PLY is parsed by the `ply-rs-bw` crate (both spellings of the type names, `float`/`float32`,
 //! `double`/`float64`, …; extra properties and elements ignored); vertices need `x`, `y`, `z` of any numeric
 //! type, faces a list property `vertex_indices` (or `vertex_index`) of any integer type.
@@ -407,13 +412,62 @@ impl FileNumbering {
 /// Lines of a text reader, with a message for bytes that are not text.
 fn text_lines(reader: impl BufRead) -> impl Iterator<Item = Result<(usize, String), String>> {
     reader.lines().enumerate().map(|(i, l)| {
-        l.map(|s| (i + 1, s)).map_err(|e| {
+        l.map(|s| (i + 1, without_bom(i, s))).map_err(|e| {
             if e.kind() == std::io::ErrorKind::InvalidData {
                 format!("line {} is not text (a binary file?)", i + 1)
             } else {
                 format!("line {}: {e}", i + 1)
             }
         })
+    })
+}
+
+/// Line `index` (from 0) without the UTF-8 byte-order mark that Windows tools put before the first line.
+fn without_bom(index: usize, line: String) -> String {
+    match line.strip_prefix('\u{feff}') {
+        Some(rest) if index == 0 => rest.to_string(),
+        _ => line,
+    }
+}
+
+/// The statements of an OBJ file with their first line numbers: a byte-order mark before the first line
+/// dropped, a line ending in `\` joined with the next (the format's line continuation), and everything from
+/// `#` to the end of the line a comment.
+fn obj_statements(
+    reader: impl BufRead,
+) -> impl Iterator<Item = Result<(usize, String), LineError>> {
+    let mut lines = reader.lines().enumerate();
+    std::iter::from_fn(move || {
+        let mut statement = String::new();
+        let mut first = None;
+        for (i, line) in lines.by_ref() {
+            let line = match line {
+                Ok(l) => without_bom(i, l),
+                Err(e) => {
+                    return Some(Err(LineError {
+                        line: i + 1,
+                        message: if e.kind() == std::io::ErrorKind::InvalidData {
+                            "the line is not text (a binary file?)".to_string()
+                        } else {
+                            e.to_string()
+                        },
+                    }));
+                }
+            };
+            first.get_or_insert(i + 1);
+            let body = line.split('#').next().unwrap_or("");
+            match body.trim_end().strip_suffix('\\') {
+                Some(head) => {
+                    statement.push_str(head);
+                    statement.push(' ');
+                }
+                _ => {
+                    statement.push_str(body);
+                    return first.map(|n| Ok((n, statement)));
+                }
+            }
+        }
+        first.map(|n| Ok((n, statement)))
     })
 }
 
@@ -432,19 +486,12 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
         face_uvs: Vec::new(),
     };
     let mut texcoords: Vec<[f64; 2]> = Vec::new();
-    for (i, line) in reader.lines().enumerate() {
-        let lineno = i + 1;
+    for record in obj_statements(reader) {
+        let (lineno, line) = record?;
         let at = |message: String| LineError {
             line: lineno,
             message,
         };
-        let line = line.map_err(|e| {
-            at(if e.kind() == std::io::ErrorKind::InvalidData {
-                "the line is not text (a binary file?)".to_string()
-            } else {
-                e.to_string()
-            })
-        })?;
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {

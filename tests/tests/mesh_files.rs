@@ -103,6 +103,62 @@ fn ply_type_spellings_extra_properties_and_elements() {
     assert_eq!(b.mesh.triangles(), m.mesh.triangles());
 }
 
+/// An OBJ file of `mesh` as other tools write them: a byte-order mark, CRLF line ends, objects, groups,
+/// materials and smoothing groups, texture coordinates and normals on every corner, comments after
+/// statements, negative (relative) indices on every third face and a face continued over two lines.
+fn obj_as_tools_write_it(mesh: &TriMesh) -> String {
+    let mut s = String::from("\u{feff}# exported\r\nmtllib cloth.mtl\r\no sheet\r\n");
+    for (i, p) in mesh.positions().iter().enumerate() {
+        s += &format!("v {:?} {:?} {:?} # vertex {}\r\n", p.x, p.y, p.z, i + 1);
+        s += &format!("vt {} 0.5\r\nvn 0 0 1\r\n", i as f64 / 100.0);
+    }
+    s += "g cloth\r\nusemtl fabric\r\ns 1\r\n";
+    let n = mesh.n_vertices() as i64;
+    for (k, t) in mesh.triangles().iter().enumerate() {
+        let idx = |v: usize| {
+            let i = v as i64 + 1;
+            if k % 3 == 2 { i - n - 1 } else { i }
+        };
+        let c: Vec<String> = t
+            .iter()
+            .map(|&v| format!("{}/{}/{}", idx(v), idx(v), idx(v)))
+            .collect();
+        if k % 5 == 1 {
+            s += &format!("f {} {} \\\r\n  {}\r\n", c[0], c[1], c[2]);
+        } else {
+            s += &format!("f {} {} {} # face {}\r\n", c[0], c[1], c[2], k + 1);
+        }
+    }
+    s
+}
+
+#[test]
+fn obj_files_as_other_tools_write_them_read_as_the_same_mesh() {
+    for (name, mesh) in meshes() {
+        let text = obj_as_tools_write_it(&mesh);
+        let back = read(text.as_bytes(), MeshFormat::Obj).unwrap();
+        assert_eq!(back.mesh.positions(), mesh.positions(), "{name}");
+        assert_eq!(back.mesh.triangles(), mesh.triangles(), "{name}");
+        // Before the byte-order mark was dropped, the first vertex was skipped as an unknown statement and
+        // every face named the wrong vertices.
+        assert!(text.starts_with('\u{feff}'));
+    }
+    // An error after a continued face names the physical line it is on, and the face by its number.
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n 3\nf 1 3 7 # broken\n";
+    let e = message(obj.as_bytes(), MeshFormat::Obj);
+    assert!(
+        e.contains("face 2 (line 6)") && e.contains("vertex 7"),
+        "{e}"
+    );
+    // A continuation on the last line ends the file's last statement.
+    let m = read(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 \\", MeshFormat::Obj).unwrap();
+    assert_eq!(m.mesh.triangles(), &[[0, 1, 2]]);
+    // OFF with a byte-order mark and CRLF.
+    let off = "\u{feff}OFF\r\n3 1 0\r\n0 0 0\r\n1 0 0\r\n0 1 0\r\n3 0 1 2\r\n";
+    let m = read(off.as_bytes(), MeshFormat::Off).unwrap();
+    assert_eq!(m.mesh.triangles(), &[[0, 1, 2]]);
+}
+
 #[test]
 fn polygons_are_fan_triangulated_in_every_format() {
     // A 2×1 quad strip and a pentagon: 1 + 1 + 3 … every polygon fanned from its first corner.
