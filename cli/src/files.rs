@@ -34,6 +34,26 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
         );
     }
     let numbering = file.numbering().clone();
+    let unreferenced = file.mesh.unreferenced_vertices();
+    if let Some(&first) = unreferenced.first() {
+        eprintln!(
+            "hinge: {}: {} {} in no face (the first: {}); held where {} {}",
+            path.display(),
+            unreferenced.len(),
+            if unreferenced.len() == 1 {
+                "vertex is"
+            } else {
+                "vertices are"
+            },
+            numbering.vertex(first),
+            if unreferenced.len() == 1 {
+                "it"
+            } else {
+                "they"
+            },
+            if unreferenced.len() == 1 { "is" } else { "are" },
+        );
+    }
     Ok((file.mesh, numbering))
 }
 

@@ -263,7 +263,10 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         obstacles.push((contact.obstacle(), motion));
         terms.push(Box::new(contact));
     }
-    let pins = Pins::new(n, scene.pinned(rest)?).map_err(|e| format!("pins: {e}"))?;
+    // Vertices of no face (kept by modelling tools) have no mass and no stiffness: held where they are.
+    let mut pinned = scene.pinned(rest)?;
+    pinned.extend(rest.unreferenced_vertices());
+    let pins = Pins::new(n, pinned).map_err(|e| format!("pins: {e}"))?;
     let system = System::new(n, terms).map_err(|e| e.to_string())?;
     let params = NewtonParams {
         gradient_tolerance: scene.solver.gradient_tolerance,
@@ -288,10 +291,21 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     })
 }
 
+/// The mean drop of the vertices at the largest rest x (of the vertices in a face).
 fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
     let r = rest.positions();
-    let xmax = r.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max);
-    let end: Vec<usize> = (0..r.len()).filter(|&v| r[v].x >= xmax).collect();
+    let mut used = vec![false; r.len()];
+    rest.triangles()
+        .iter()
+        .flatten()
+        .for_each(|&v| used[v] = true);
+    let xmax = (0..r.len())
+        .filter(|&v| used[v])
+        .map(|v| r[v].x)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let end: Vec<usize> = (0..r.len())
+        .filter(|&v| used[v] && r[v].x >= xmax)
+        .collect();
     end.iter().map(|&v| r[v].z - x[v].z).sum::<f64>() / end.len().max(1) as f64
 }
 
@@ -652,7 +666,8 @@ pub fn simulate_until(
         obstacles,
     } = build(scene, rest, true)?;
     let groups = scene.pin_groups(rest)?;
-    let fixed: Vec<usize> = scene.fixed_pins(rest)?;
+    let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
+    fixed.extend(rest.unreferenced_vertices());
     let make_stepper = |system: &hinge_core::energy::System,
                         active: &[bool],
                         solver: Box<dyn LinearSolver>|

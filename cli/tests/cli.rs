@@ -2613,3 +2613,125 @@ fn a_closed_or_full_standard_output_is_not_a_panic() {
         );
     }
 }
+
+/// A mesh file with vertices in no face (modelling tools keep them after faces are deleted): they have no
+/// mass and no stiffness, so before they were held they made every Hessian singular (a diagonal shift on
+/// every iteration, a different path). Now they are held where they are, a note names the first in the
+/// file's numbering, and the other vertices move as they do in the same file without them.
+#[test]
+fn vertices_in_no_face_are_held_and_change_nothing_else() {
+    use hinge_core::meshio::write_mesh;
+    use hinge_core::nalgebra::Vector3;
+    let dir = tmp("unreferenced");
+    let sheet = hinge_core::shapes::irregular_sheet(9, 8, 3).unwrap();
+    // The drape's cloth: 1 m square at z = 0.3 over the sphere.
+    let x: Vec<Vector3<f64>> = sheet
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(p.x - 0.5, p.y - 0.5, 0.3))
+        .collect();
+    let t = sheet.triangles().to_vec();
+    // The same mesh with two extra vertices inserted at 0-based positions 17 and 40 of the numbering.
+    let extra = [17usize, 40];
+    let slots: Vec<usize> = (0..x.len() + extra.len())
+        .filter(|s| !extra.contains(s))
+        .collect();
+    let map = |v: usize| slots[v];
+    let mut positions = vec![Vector3::new(7.0, 7.0, 7.0); x.len() + extra.len()];
+    for (v, p) in x.iter().enumerate() {
+        positions[map(v)] = *p;
+    }
+    let faces: Vec<[usize; 3]> = t.iter().map(|f| f.map(map)).collect();
+    for &e in &extra {
+        assert_eq!(positions[e], Vector3::new(7.0, 7.0, 7.0), "the extra slots");
+    }
+    let write_scene = |name: &str, mesh: &str| {
+        let scene = format!(
+            "name = \"{name}\"\nframes = 6\ndt = 0.016666666666666666\ngravity = [0.0, 0.0, -9.81]\n\
+             [mesh]\nobj = \"{mesh}\"\n[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n\
+             [bending]\nenergy = \"tan-bending\"\n[[obstacles]]\nkind = \"sphere\"\ncenter = [0.0, 0.0, 0.0]\n\
+             radius = 0.25\nstiffness = 2e3\nmargin = 0.005\n[solver]\nmax_iterations = 300\ngradient_tolerance = 1e-6\n"
+        );
+        std::fs::write(dir.join(format!("{name}.toml")), scene).unwrap();
+    };
+    write_mesh(dir.join("plain.obj"), &x, &t).unwrap();
+    write_mesh(dir.join("holes.obj"), &positions, &faces).unwrap();
+    write_scene("plain", "plain.obj");
+    write_scene("holes", "holes.obj");
+    let run = |name: &str| {
+        let o = hinge(&[
+            "run",
+            dir.join(format!("{name}.toml")).to_str().unwrap(),
+            "--out",
+            dir.join(name).to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{name}: {err}");
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join(name).join("summary.json")).unwrap(),
+        )
+        .unwrap();
+        let last = hinge_core::obj::read_obj(dir.join(name).join("frame_0006.obj")).unwrap();
+        (err, summary, last.positions().to_vec())
+    };
+    let (plain_err, plain, plain_x) = run("plain");
+    let (holes_err, holes, holes_x) = run("holes");
+    assert!(!plain_err.contains("in no face"), "{plain_err}");
+    assert!(
+        holes_err.contains(
+            "2 vertices are in no face (the first: vertex 18 (line 18)); held where they are"
+        ),
+        "{holes_err}"
+    );
+    // The cloth reached the sphere in these frames (contact counts), with the same Newton path.
+    assert!(
+        plain["min_clearance_to_sphere"].as_f64().unwrap() < 0.006,
+        "{plain}"
+    );
+    for key in ["newton_iterations", "factorizations", "line_search_steps"] {
+        assert_eq!(plain[key], holes[key], "{key}");
+    }
+    assert_eq!(
+        holes["factorizations"], holes["newton_iterations"],
+        "no shifts"
+    );
+    for (v, p) in plain_x.iter().enumerate() {
+        assert!((holes_x[map(v)] - p).norm() <= 1e-12, "vertex {v}");
+    }
+    for &e in &extra {
+        assert_eq!(holes_x[e], Vector3::new(7.0, 7.0, 7.0), "held, bitwise");
+    }
+    assert_eq!(plain["far_end_drop"], holes["far_end_drop"]);
+    // The static solve (its own pins): the same equilibrium and counts, the extra vertices held.
+    for name in ["plain", "holes"] {
+        let path = dir.join(format!("{name}.toml"));
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(&path, text + "[pins]\nx_at_most = -0.4\n").unwrap();
+    }
+    let run_static = |name: &str| {
+        let out = dir.join(format!("{name}-static"));
+        let o = hinge(&[
+            "run",
+            dir.join(format!("{name}.toml")).to_str().unwrap(),
+            "--static",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
+                .unwrap();
+        let x = hinge_core::obj::read_obj(out.join("static.obj")).unwrap();
+        (summary, x.positions().to_vec())
+    };
+    let (plain, plain_x) = run_static("plain");
+    let (holes, holes_x) = run_static("holes");
+    assert_eq!(plain["newton_iterations"], holes["newton_iterations"]);
+    assert_eq!(plain["factorizations"], holes["factorizations"]);
+    for (v, p) in plain_x.iter().enumerate() {
+        assert!((holes_x[map(v)] - p).norm() <= 1e-12, "static, vertex {v}");
+    }
+    for &e in &extra {
+        assert_eq!(holes_x[e], Vector3::new(7.0, 7.0, 7.0), "held, bitwise");
+    }
+}

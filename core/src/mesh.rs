@@ -106,6 +106,19 @@ impl TriMesh {
         self.positions.len()
     }
 
+    /// The vertices that belong to no triangle, ascending (files from modelling tools often keep some
+    /// after faces were deleted). No energy of the mesh acts on them and they carry no lumped mass, so the
+    /// solvers of the command line and the Python package hold them where they are.
+    pub fn unreferenced_vertices(&self) -> Vec<usize> {
+        let mut used = vec![false; self.positions.len()];
+        for t in &self.triangles {
+            for &v in t {
+                used[v] = true;
+            }
+        }
+        (0..used.len()).filter(|&v| !used[v]).collect()
+    }
+
     /// Number of triangles.
     pub fn n_triangles(&self) -> usize {
         self.triangles.len()

@@ -222,8 +222,11 @@ impl PySystem {
         Ok(())
     }
 
+    /// The solvers' pins: the user's, and the vertices of no triangle (no mass, no stiffness: held).
     fn pins(&self) -> PyResult<Pins> {
-        Pins::new(self.rest.n_vertices(), self.pins.clone()).map_err(value_error)
+        let mut pinned = self.pins.clone();
+        pinned.extend(self.rest.unreferenced_vertices());
+        Pins::new(self.rest.n_vertices(), pinned).map_err(value_error)
     }
 
     fn positions(&self, x: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<Vector3<f64>>> {

@@ -437,6 +437,32 @@ def test_static_solve_reaches_equilibrium_and_holds_pins():
     assert np.abs(g.reshape(-1, 3)[free]).max() <= 1e-7
 
 
+def test_vertices_in_no_triangle_are_held_and_change_nothing_else():
+    # Two extra vertices in the middle of the numbering, in no triangle (as modelling tools leave them): no
+    # mass, no stiffness. Held where they are, the others reach the same equilibrium on the same Newton path
+    # (before, every Hessian was singular and needed a diagonal shift).
+    V, F, s, clamp = clamped_sheet(23, 1e-2, 1e6)
+    X, stats = hinge.solve_static(s, V)
+    extra = [5, 11]
+    slots = np.array([i for i in range(len(V) + 2) if i not in extra])
+    V2 = np.full((len(V) + 2, 3), 4.0)
+    V2[slots] = V
+    s2 = hinge.System(V2, slots[F]).add_bending(energy="discrete-shells", k=1e-2)
+    s2.add_membrane(1e6, 0.3, 1e-3).add_gravity(0.5)
+    s2.pin(slots[clamp])
+    X2, stats2 = hinge.solve_static(s2, V2)
+    assert stats2["newton_iterations"] == stats["newton_iterations"]
+    assert stats2["factorizations"] == stats["factorizations"]
+    assert np.abs(X2[slots] - X).max() <= 1e-12
+    assert np.array_equal(X2[extra], V2[extra])
+    assert list(s2.pinned) == sorted(slots[clamp])  # the user's pins, as given
+    # Time stepping too.
+    t = hinge.ImplicitEuler(s2, V2, 1 / 60, 0.5)
+    for _ in range(3):
+        X3, _ = t.step()
+    assert np.isfinite(X3).all() and np.array_equal(X3[extra], V2[extra])
+
+
 def test_implicit_euler_falls_and_comes_to_rest_on_a_plane():
     V, F = sheet(5, 5, 24, jitter=0.05)
     V = V * 0.2 + [0.0, 0.0, 0.05]
