@@ -54,6 +54,22 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
             if unreferenced.len() == 1 { "is" } else { "are" },
         );
     }
+    let coincident = file.mesh.coincident_vertices();
+    if let Some(&(v, first)) = coincident.first() {
+        eprintln!(
+            "hinge: {}: {} {} exactly on another vertex (the first: {} on {}); nothing couples them, so the \
+             surface is cut there (UV seams?): weld them if they should be one",
+            path.display(),
+            coincident.len(),
+            if coincident.len() == 1 {
+                "vertex lies"
+            } else {
+                "vertices lie"
+            },
+            numbering.vertex(v),
+            numbering.vertex(first),
+        );
+    }
     Ok((file.mesh, numbering))
 }
 

@@ -2735,3 +2735,39 @@ fn vertices_in_no_face_are_held_and_change_nothing_else() {
         assert_eq!(holes_x[e], Vector3::new(7.0, 7.0, 7.0), "held, bitwise");
     }
 }
+
+/// A mesh split along a seam (an exporter's duplicated vertices) is read as it is — nothing couples the two
+/// sides — with one note naming the first duplicate in the file's numbering; a welded mesh has no note.
+#[test]
+fn vertices_split_along_a_seam_are_named_on_reading() {
+    let dir = tmp("seam");
+    let cut = dir.join("cut.obj");
+    std::fs::write(
+        &cut,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 0 0\nv 1 1 0.1\nv 0 1 0\nf 1 2 3\nf 4 5 6\n",
+    )
+    .unwrap();
+    let o = hinge(&["stats", "--rest", cut.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("2 vertices lie exactly on another vertex (the first: vertex 4 (line 4) on vertex 2 (line 2))"),
+        "{err}"
+    );
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("hinges 0"), "{stdout}");
+    let welded = dir.join("welded.obj");
+    std::fs::write(
+        &welded,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0.1\nf 1 2 3\nf 2 4 3\n",
+    )
+    .unwrap();
+    let o = hinge(&["stats", "--rest", welded.to_str().unwrap()]);
+    assert!(
+        o.status.success() && o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(String::from_utf8_lossy(&o.stdout).contains("hinges 1"));
+}

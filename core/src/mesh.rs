@@ -119,6 +119,34 @@ impl TriMesh {
         (0..used.len()).filter(|&v| !used[v]).collect()
     }
 
+    /// Vertices of faces at exactly the position of a lower-numbered vertex of a face, as `(vertex, first)`
+    /// pairs ascending by `vertex` (`first` is the lowest-numbered vertex at that position). Exporters split
+    /// vertices along UV seams and hard edges this way: nothing couples the two copies, so the surface is cut
+    /// there (no hinge, no shared membrane edge). Vertices in no face are left out.
+    pub fn coincident_vertices(&self) -> Vec<(usize, usize)> {
+        let mut used = vec![false; self.positions.len()];
+        for t in &self.triangles {
+            for &v in t {
+                used[v] = true;
+            }
+        }
+        let key = |v: usize| {
+            let p = &self.positions[v];
+            // +0.0 and -0.0 are the same position.
+            [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits())
+        };
+        let mut order: Vec<usize> = (0..self.positions.len()).filter(|&v| used[v]).collect();
+        order.sort_unstable_by_key(|&v| (key(v), v));
+        let mut pairs = Vec::new();
+        for group in order.chunk_by(|&a, &b| key(a) == key(b)) {
+            if let Some((&first, rest)) = group.split_first() {
+                pairs.extend(rest.iter().map(|&v| (v, first)));
+            }
+        }
+        pairs.sort_unstable();
+        pairs
+    }
+
     /// Number of triangles.
     pub fn n_triangles(&self) -> usize {
         self.triangles.len()

@@ -159,6 +159,91 @@ fn obj_files_as_other_tools_write_them_read_as_the_same_mesh() {
     assert_eq!(m.mesh.triangles(), &[[0, 1, 2]]);
 }
 
+/// `sheet` cut along its middle as an exporter splits vertices along a UV seam: the faces right of x = 0.5
+/// get copies (numbered after the others) of the vertices they share with the faces on the left. Returns
+/// the cut mesh and the (copy, original) pairs.
+fn seam_cut(sheet: &TriMesh) -> (TriMesh, Vec<(usize, usize)>) {
+    let x = sheet.positions();
+    let right = |t: &[usize; 3]| t.iter().map(|&v| x[v].x).sum::<f64>() / 3.0 > 0.5;
+    let mut on_left = vec![false; x.len()];
+    for t in sheet.triangles().iter().filter(|t| !right(t)) {
+        t.iter().for_each(|&v| on_left[v] = true);
+    }
+    let mut positions = x.to_vec();
+    let mut copy = vec![usize::MAX; x.len()];
+    let mut pairs = Vec::new();
+    let mut triangles = Vec::new();
+    for t in sheet.triangles() {
+        if !right(t) {
+            triangles.push(*t);
+            continue;
+        }
+        triangles.push(t.map(|v| {
+            if !on_left[v] {
+                return v;
+            }
+            if copy[v] == usize::MAX {
+                copy[v] = positions.len();
+                pairs.push((positions.len(), v));
+                positions.push(x[v]);
+            }
+            copy[v]
+        }));
+    }
+    (TriMesh::new(positions, triangles).unwrap(), pairs)
+}
+
+#[test]
+fn vertices_split_along_a_seam_are_found() {
+    let sheet = irregular_sheet(9, 8, 4).unwrap();
+    assert!(sheet.coincident_vertices().is_empty());
+    let (cut, pairs) = seam_cut(&sheet);
+    assert!(pairs.len() >= 8, "a seam across the sheet: {}", pairs.len());
+    assert_eq!(cut.coincident_vertices(), pairs);
+    // Through an OBJ file: the same pairs (the written digits round-trip).
+    let mut bytes = Vec::new();
+    hinge_core::obj::write_obj_to(&mut bytes, cut.positions(), cut.triangles()).unwrap();
+    assert_eq!(
+        read(&bytes, MeshFormat::Obj)
+            .unwrap()
+            .mesh
+            .coincident_vertices(),
+        pairs
+    );
+    // Renumbered at random: the pairs follow the numbering, each copy paired with the lowest of its group.
+    let perm = random_permutation(cut.n_vertices(), 5);
+    let renumbered = renumber(&cut, &perm).unwrap();
+    let mut expected: Vec<(usize, usize)> = pairs
+        .iter()
+        .map(|&(a, b)| {
+            let (a, b) = (perm[a], perm[b]);
+            (a.max(b), a.min(b))
+        })
+        .collect();
+    expected.sort_unstable();
+    assert_eq!(renumbered.coincident_vertices(), expected);
+    // -0.0 and +0.0 are one position; a vertex in no face does not count; a closed mesh has none.
+    let m = TriMesh::new(
+        vec![
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.0, 1.0, 0.0),
+            Vector3::new(-0.0, 0.0, -0.0),
+            Vector3::new(1.0, 0.0, 0.0),
+        ],
+        vec![[0, 1, 2], [3, 2, 1]],
+    )
+    .unwrap();
+    assert_eq!(m.coincident_vertices(), vec![(3, 0)]);
+    assert!(icosphere(3, 1.0).unwrap().coincident_vertices().is_empty());
+    assert!(
+        torus(16, 9, 1.0, 0.3)
+            .unwrap()
+            .coincident_vertices()
+            .is_empty()
+    );
+}
+
 #[test]
 fn polygons_are_fan_triangulated_in_every_format() {
     // A 2×1 quad strip and a pentagon: 1 + 1 + 3 … every polygon fanned from its first corner.
