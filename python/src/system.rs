@@ -400,6 +400,19 @@ impl PySystem {
         self.pins.clone()
     }
 
+    /// The vertices in no triangle, ascending (no mass, no stiffness: the solvers hold them).
+    #[getter]
+    fn unreferenced_vertices(&self) -> Vec<usize> {
+        self.rest.unreferenced_vertices()
+    }
+
+    /// `(vertex, first)` pairs of triangle vertices at exactly the rest position of a lower-numbered one
+    /// (a mesh split along seams: nothing couples the copies).
+    #[getter]
+    fn coincident_vertices(&self) -> Vec<(usize, usize)> {
+        self.rest.coincident_vertices()
+    }
+
     /// Number of vertices.
     #[getter]
     fn n_vertices(&self) -> usize {

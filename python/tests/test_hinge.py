@@ -447,7 +447,10 @@ def test_vertices_in_no_triangle_are_held_and_change_nothing_else():
     slots = np.array([i for i in range(len(V) + 2) if i not in extra])
     V2 = np.full((len(V) + 2, 3), 4.0)
     V2[slots] = V
-    s2 = hinge.System(V2, slots[F]).add_bending(energy="discrete-shells", k=1e-2)
+    with pytest.warns(hinge.MeshWarning, match="2 of the vertices are in no triangle .the first: vertex 5."):
+        s2 = hinge.System(V2, slots[F])
+    assert s2.unreferenced_vertices == extra and s2.coincident_vertices == []
+    s2.add_bending(energy="discrete-shells", k=1e-2)
     s2.add_membrane(1e6, 0.3, 1e-3).add_gravity(0.5)
     s2.pin(slots[clamp])
     X2, stats2 = hinge.solve_static(s2, V2)
@@ -461,6 +464,28 @@ def test_vertices_in_no_triangle_are_held_and_change_nothing_else():
     for _ in range(3):
         X3, _ = t.step()
     assert np.isfinite(X3).all() and np.array_equal(X3[extra], V2[extra])
+
+
+def test_a_mesh_split_along_a_seam_warns_and_is_cut_there():
+    V, F = sheet(6, 5, 8, jitter=0.05)
+    right = V[F].mean(axis=1)[:, 0] > 0.5
+    seam = np.intersect1d(np.unique(F[~right]), np.unique(F[right]))
+    copies = {int(v): len(V) + i for i, v in enumerate(seam)}
+    V2 = np.vstack([V, V[seam]])
+    F2 = F.copy()
+    F2[right] = np.vectorize(lambda v: copies.get(int(v), v))(F[right])
+    with pytest.warns(hinge.MeshWarning, match=f"{len(seam)} vertices lie exactly on another vertex"):
+        s = hinge.System(V2, F2)
+    assert s.coincident_vertices == sorted((copies[int(v)], int(v)) for v in seam)
+    # Cut: the hinges whose two faces lie on different sides of the seam are gone, no others.
+    side = {tuple(sorted(f)): r for f, r in zip(F.tolist(), right)}
+    across = sum(side[tuple(sorted(h[:3]))] != side[tuple(sorted(h[1:]))] for h in hinge.hinges(V, F).tolist())
+    assert across >= 4
+    assert len(hinge.hinges(V2, F2)) == len(hinge.hinges(V, F)) - across
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert hinge.System(V, F).coincident_vertices == []
 
 
 def test_implicit_euler_falls_and_comes_to_rest_on_a_plane():

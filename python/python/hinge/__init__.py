@@ -15,12 +15,14 @@ derive (the same text), with its parameters as keyword arguments: numbers, or ar
 hinge in hinge order (``model.hinges`` / ``hinge.hinges(V, F)``). Every error raises ``ValueError``.
 """
 
+import warnings as _warnings
+
 import numpy as _np
 import scipy.sparse as _sp
 
 from . import _hinge
 
-__all__ = ["BendingModel", "System", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
+__all__ = ["BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
            "adjoint_gradient", "fit", "fit_scene"]
 
 
@@ -153,6 +155,11 @@ class BendingModel:
         self._m.set_rest_angles(a)
 
 
+class MeshWarning(UserWarning):
+    """A mesh hinge can use but that may not be what was meant: vertices in no triangle, or vertices split
+    along a seam."""
+
+
 class System:
     """Energies composed on one rest mesh, with pinned vertices::
 
@@ -171,6 +178,35 @@ class System:
     def __init__(self, V, F):
         self._s = _hinge.System(_vertices(V), _faces(F))
         self.n_vertices = self._s.n_vertices
+        unused = self._s.unreferenced_vertices
+        if unused:
+            _warnings.warn(
+                f"{len(unused)} of the vertices are in no triangle (the first: vertex {unused[0]}); they have "
+                "no mass and no stiffness, and the solvers hold them where they are",
+                MeshWarning,
+                stacklevel=2,
+            )
+        seam = self._s.coincident_vertices
+        if seam:
+            v, first = seam[0]
+            _warnings.warn(
+                f"{len(seam)} vertices lie exactly on another vertex (the first: vertex {v} on vertex {first}); "
+                "nothing couples them, so the surface is cut there (split along UV seams?): merge them if "
+                "they should be one",
+                MeshWarning,
+                stacklevel=2,
+            )
+
+    @property
+    def unreferenced_vertices(self):
+        """The vertices in no triangle, ascending (held where they are by the solvers)."""
+        return list(self._s.unreferenced_vertices)
+
+    @property
+    def coincident_vertices(self):
+        """``(vertex, first)`` pairs: triangle vertices at exactly the position of the lower-numbered
+        ``first`` (a mesh split along seams is cut there)."""
+        return [tuple(p) for p in self._s.coincident_vertices]
 
     def add_bending(self, energy=None, psi=None, **params):
         if energy is None and psi is None:
