@@ -2771,3 +2771,29 @@ fn vertices_split_along_a_seam_are_named_on_reading() {
     );
     assert!(String::from_utf8_lossy(&o.stdout).contains("hinges 1"));
 }
+
+/// A stiffness whose Hessian overflows f64 (Young's modulus 1e308 Pa) ends the run with one line naming the
+/// membrane and a vertex, not "linear solve failed (shift inf)" from the factorization.
+#[test]
+fn an_overflowing_stiffness_is_named() {
+    let dir = tmp("overflow");
+    let drape = String::from_utf8(hinge(&["scenes", "show", "drape"]).stdout).unwrap();
+    let scene = drape.replace("young = 2e5 ", "young = 1e308 ");
+    assert_ne!(scene, drape);
+    let path = dir.join("overflow.toml");
+    std::fs::write(&path, scene).unwrap();
+    let err = one_line_failure(&[
+        "run",
+        path.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--no-frames",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("frame 1: evaluation failed: membrane, vertex ")
+            && err.contains("its Hessian is not finite here"),
+        "{err}"
+    );
+}

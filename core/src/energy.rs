@@ -12,7 +12,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::bending::scatter::{Orient, add_block_values};
 use crate::bending::{BendingModel, Method, Parallelism, Request, Scratch};
-use crate::error::EvalError;
+use crate::error::{ElementRef, EvalError};
 use crate::mesh::check_same_vertex_count;
 use crate::pattern::SymmetricPattern;
 use crate::psi::HingePsi;
@@ -821,6 +821,76 @@ impl System {
             out.energy += *e;
         }
         Ok(())
+    }
+
+    /// Checks an evaluation of this system at `x` (`out`, as [`System::evaluate_into`] left it for
+    /// `request`): its energy, gradient and Hessian must be finite. The check is a pass over the outputs;
+    /// only when it fails are the terms evaluated again one at a time, to name the first whose own output
+    /// is not finite and the vertex of its first non-finite entry. Newton runs it after every evaluation with
+    /// derivatives (an energy's stiffness or a load can overflow f64 where each input is finite).
+    ///
+    /// # Errors
+    /// [`EvalError::AtElement`] naming the term and the vertex; [`EvalError::NonFiniteTotal`] when no
+    /// single vertex is to blame (a term's energy alone, or the sum of finite terms, overflowed).
+    pub fn check_finite(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        par: Parallelism,
+        out: &SystemEvaluation,
+    ) -> Result<(), EvalError> {
+        // v · 0 is 0 for every finite v and NaN otherwise: one multiply-add per value, no branch.
+        let finite = |v: &[f64]| v.iter().fold(0.0, |a, &b| a + b * 0.0) == 0.0;
+        let value = !request.value || out.energy.is_finite();
+        let gradient = !request.gradient || finite(&out.gradient);
+        let hessian = !request.hessian || finite(&out.hessian);
+        if value && gradient && hessian {
+            return Ok(());
+        }
+        let mut scratch = self.new_output();
+        for t in &mut self.terms {
+            scratch.gradient.fill(0.0);
+            scratch.hessian.fill(0.0);
+            let mut acc = Accumulator {
+                pattern: &self.pattern,
+                gradient: if request.gradient {
+                    &mut scratch.gradient
+                } else {
+                    &mut []
+                },
+                hessian: if request.hessian {
+                    &mut scratch.hessian
+                } else {
+                    &mut []
+                },
+            };
+            let e = t.add_to(x, request, par, &mut acc)?;
+            let at = |vertex: usize, what: &str, v: f64| EvalError::AtElement {
+                energy: t.name().to_string(),
+                element: ElementRef::Vertex(vertex),
+                message: format!(
+                    "its {what} is not finite here ({v}): a stiffness, load or coordinate too large for f64?"
+                ),
+            };
+            if let Some(k) = scratch.gradient.iter().position(|v| !v.is_finite()) {
+                return Err(at(k / 3, "gradient", scratch.gradient[k]));
+            }
+            if let Some(k) = scratch.hessian.iter().position(|v| !v.is_finite()) {
+                // The value's row (in the lower triangle, the later of its two vertices in storage).
+                let vertex = self.pattern.caller_dof(self.pattern.row_idx()[k]) / 3;
+                return Err(at(vertex, "Hessian", scratch.hessian[k]));
+            }
+            if request.value && !e.is_finite() {
+                return Err(EvalError::NonFiniteTotal {
+                    energy: t.name().to_string(),
+                    message: format!("its energy is not finite ({e})"),
+                });
+            }
+        }
+        Err(EvalError::NonFiniteTotal {
+            energy: "the system".into(),
+            message: "every term is finite, their sum is not (it overflows f64)".into(),
+        })
     }
 
     /// Every term's differentiable parameters, named `TERM.NAME` (the term's [`Energy::name`], a dot, the

@@ -221,6 +221,15 @@ pub enum EvalError {
         /// What is wrong.
         message: String,
     },
+    /// An energy's output is not finite and no single element is to blame (its total, or the sum of the
+    /// terms, overflowed): [`crate::energy::System::check_finite`].
+    #[error("{energy}: {message}")]
+    NonFiniteTotal {
+        /// The energy's name, or `the system`.
+        energy: String,
+        /// What is not finite.
+        message: String,
+    },
     /// An energy cannot be bound to a sparsity pattern.
     #[error("sparsity pattern: {message}")]
     Pattern {

@@ -106,7 +106,13 @@ impl Objective for System {
         request: Request,
         out: &mut SystemEvaluation,
     ) -> Result<(), EvalError> {
-        self.evaluate_into(x, request, Parallelism::Rayon, out)
+        self.evaluate_into(x, request, Parallelism::Rayon, out)?;
+        // Derivatives that overflowed would reach the factorization as a failed pivot or a NaN step: name
+        // the term and the vertex instead (a pass over the outputs, cheap next to a factorization).
+        if request.gradient || request.hessian {
+            self.check_finite(x, request, Parallelism::Rayon, out)?;
+        }
+        Ok(())
     }
 }
 

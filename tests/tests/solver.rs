@@ -1304,3 +1304,84 @@ fn a_step_whose_prediction_cannot_be_evaluated_starts_from_the_last_state() {
         assert_eq!(v1[i], (x1[i] - x[i]) / dt);
     }
 }
+
+/// A membrane whose Young's modulus is finite but whose Hessian overflows f64 (1e308 Pa on an irregular,
+/// renumbered sheet): `System::evaluate` returns the non-finite values as they are; `check_finite` names
+/// the membrane (the second term: the bending before it is finite) and a vertex whose Hessian row holds a
+/// non-finite value; Newton fails with that error before any factorization (before, it reached the
+/// factorization and reported "linear solve failed (shift inf)").
+#[test]
+fn derivatives_that_overflow_are_named_by_term_and_vertex() {
+    use hinge_core::EvalError;
+    use hinge_core::error::ElementRef;
+    use hinge_energies::membrane::StvkMembrane;
+    let rest = hinge_core::shapes::irregular_sheet(8, 7, 12).unwrap();
+    let x: Vec<Vector3<f64>> = rest
+        .positions()
+        .iter()
+        .map(|p| Vector3::new(p.x, p.y, 0.05 * (4.0 * p.x).sin() * p.y))
+        .collect();
+    let system = |young: f64| {
+        let bending = BendingModel::new(&rest, DiscreteShells { k: 0.01 }).unwrap();
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(HingeTerm::new("bending", bending, Method::Refactored)),
+            Box::new(StvkMembrane::new(&rest, young, 0.3, 5e-4).unwrap()),
+        ];
+        System::new(rest.n_vertices(), terms).unwrap()
+    };
+    // Finite: the check passes.
+    let mut fine = system(1e305);
+    let out = fine
+        .evaluate(&x, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    assert!(out.hessian.iter().all(|v| v.is_finite()));
+    fine.check_finite(&x, Request::ALL, Parallelism::Sequential, &out)
+        .unwrap();
+    let mut sys = system(1e308);
+    let out = sys
+        .evaluate(&x, Request::ALL, Parallelism::Sequential)
+        .unwrap();
+    assert!(
+        out.hessian.iter().any(|v| !v.is_finite()),
+        "the overflow this test needs"
+    );
+    let e = sys
+        .check_finite(&x, Request::ALL, Parallelism::Sequential, &out)
+        .unwrap_err();
+    let EvalError::AtElement {
+        energy,
+        element: ElementRef::Vertex(v),
+        ..
+    } = &e
+    else {
+        panic!("{e}");
+    };
+    assert_eq!(energy, "membrane", "{e}");
+    // The named vertex is one of the two of a non-finite stored value (column by column through the CSC).
+    let p = sys.pattern();
+    let (cp, ri) = (p.col_ptr(), p.row_idx());
+    let touches = (0..p.dim()).any(|j| {
+        (cp[j]..cp[j + 1]).any(|k| {
+            !out.hessian[k].is_finite()
+                && (p.caller_dof(ri[k]) / 3 == *v || p.caller_dof(j) / 3 == *v)
+        })
+    });
+    assert!(touches, "{e}");
+    // Newton: the same error, no factorization.
+    let pins = Pins::new(rest.n_vertices(), vec![0]).unwrap();
+    let mut newton = Newton::new(
+        &sys,
+        &pins,
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut y = x.clone();
+    let err = newton.minimize(&mut sys, &mut y, None).unwrap_err();
+    let SolverError::Eval { source, stats } = &err else {
+        panic!("{err}");
+    };
+    assert_eq!(source, &e);
+    assert_eq!(stats.factorizations, 0);
+    assert_eq!(y, x, "state untouched");
+}
