@@ -501,6 +501,9 @@ impl PySystem {
         let r = py.detach(|| -> Result<_, String> {
             sys.evaluate_into(&pos, request, Parallelism::Rayon, out)
                 .map_err(|e| e.to_string())?;
+            // Derivatives that overflow f64 raise, naming the term and the vertex (not NaN in the arrays).
+            sys.check_finite(&pos, request, Parallelism::Rayon, out)
+                .map_err(|e| e.to_string())?;
             let mut data = Vec::new();
             if hessian {
                 data = vec![0.0; csr.nnz()];

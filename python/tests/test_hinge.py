@@ -466,6 +466,21 @@ def test_vertices_in_no_triangle_are_held_and_change_nothing_else():
     assert np.isfinite(X3).all() and np.array_equal(X3[extra], V2[extra])
 
 
+def test_derivatives_that_overflow_raise_naming_the_term_and_vertex():
+    V, F = sheet(5, 4, 3, jitter=0.05)
+    X = V.copy()
+    X[:, 2] = 0.05 * np.sin(4 * V[:, 0]) * V[:, 1]
+    ok = hinge.System(V, F).add_bending(energy="discrete-shells", k=0.01).add_membrane(1e305, 0.3, 5e-4)
+    E, g, H = ok.evaluate(X)
+    assert np.isfinite(H.data).all()
+    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=0.01).add_membrane(1e308, 0.3, 5e-4)
+    with pytest.raises(ValueError, match=r"membrane, vertex \d+: its Hessian is not finite here"):
+        s.evaluate(X)
+    s.pin([0])
+    with pytest.raises(ValueError, match=r"membrane, vertex \d+: its Hessian is not finite here"):
+        hinge.solve_static(s, X)
+
+
 def test_a_mesh_split_along_a_seam_warns_and_is_cut_there():
     V, F = sheet(6, 5, 8, jitter=0.05)
     right = V[F].mean(axis=1)[:, 0] > 0.5
