@@ -36,22 +36,14 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
     let numbering = file.numbering().clone();
     let unreferenced = file.mesh.unreferenced_vertices();
     if let Some(&first) = unreferenced.first() {
+        let one = unreferenced.len() == 1;
         eprintln!(
-            "hinge: {}: {} {} in no face (the first: {}); held where {} {}",
+            "hinge: {}: {} {} in no face (the first: {}); held where {}",
             path.display(),
             unreferenced.len(),
-            if unreferenced.len() == 1 {
-                "vertex is"
-            } else {
-                "vertices are"
-            },
+            if one { "vertex is" } else { "vertices are" },
             numbering.vertex(first),
-            if unreferenced.len() == 1 {
-                "it"
-            } else {
-                "they"
-            },
-            if unreferenced.len() == 1 { "is" } else { "are" },
+            if one { "it is" } else { "they are" },
         );
     }
     let coincident = file.mesh.coincident_vertices();

@@ -28,7 +28,21 @@ pub struct Accumulator<'a> {
     pub hessian: &'a mut [f64],
 }
 
-impl Accumulator<'_> {
+impl<'a> Accumulator<'a> {
+    /// An accumulator into `gradient` and `hessian` for the outputs `request` asks for (the others empty).
+    pub fn of(
+        pattern: &'a SymmetricPattern,
+        request: Request,
+        gradient: &'a mut [f64],
+        hessian: &'a mut [f64],
+    ) -> Self {
+        Self {
+            pattern,
+            gradient: if request.gradient { gradient } else { &mut [] },
+            hessian: if request.hessian { hessian } else { &mut [] },
+        }
+    }
+
     /// Adds `g` to vertex `v`'s gradient (no-op when the gradient is not requested).
     #[inline]
     pub fn add_gradient(&mut self, v: usize, g: &Vector3<f64>) {
@@ -795,19 +809,7 @@ impl System {
         if request.hessian {
             out.hessian.fill(0.0);
         }
-        let mut acc = Accumulator {
-            pattern: &self.pattern,
-            gradient: if request.gradient {
-                &mut out.gradient
-            } else {
-                &mut []
-            },
-            hessian: if request.hessian {
-                &mut out.hessian
-            } else {
-                &mut []
-            },
-        };
+        let mut acc = Accumulator::of(&self.pattern, request, &mut out.gradient, &mut out.hessian);
         out.energy = 0.0;
         for ((t, e), sec) in self
             .terms
@@ -851,19 +853,12 @@ impl System {
         for t in &mut self.terms {
             scratch.gradient.fill(0.0);
             scratch.hessian.fill(0.0);
-            let mut acc = Accumulator {
-                pattern: &self.pattern,
-                gradient: if request.gradient {
-                    &mut scratch.gradient
-                } else {
-                    &mut []
-                },
-                hessian: if request.hessian {
-                    &mut scratch.hessian
-                } else {
-                    &mut []
-                },
-            };
+            let mut acc = Accumulator::of(
+                &self.pattern,
+                request,
+                &mut scratch.gradient,
+                &mut scratch.hessian,
+            );
             let e = t.add_to(x, request, par, &mut acc)?;
             let at = |vertex: usize, what: &str, v: f64| EvalError::AtElement {
                 energy: t.name().to_string(),
