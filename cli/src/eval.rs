@@ -108,7 +108,7 @@ pub const ENERGIES: [EnergyEntry; 13] = [
 /// Arguments of `hinge eval`.
 #[derive(Args)]
 pub struct EvalArgs {
-    /// Rest mesh (OBJ, OFF or PLY, by extension).
+    /// Rest mesh (OBJ, OFF, PLY or STL, by extension).
     #[arg(long, required_unless_present = "list_energies")]
     rest: Option<PathBuf>,
     /// Deformed mesh (a mesh file with the rest mesh's vertices in its order, and its faces in any order and

@@ -6,7 +6,7 @@ use std::path::Path;
 use hinge_core::meshio::{FileNumbering, read_mesh};
 use hinge_core::{ElementNames, TriMesh};
 
-/// Reads a mesh file (OBJ, OFF or PLY by extension); polygons with more than three corners are
+/// Reads a mesh file (OBJ, OFF, PLY or STL by extension); polygons with more than three corners are
 /// fan-triangulated, and one line on stderr says how many. Every command bends the mesh, so its hinge
 /// topology is checked here, where a non-manifold edge, an inconsistent orientation or a repeated face can
 /// still be named as the file counts (face and line), not by the 0-based triangle numbers of the library.

@@ -35,7 +35,7 @@ pub const KEYS: &str = "material.young, material.thickness, material.density, be
 pub struct FitArgs {
     /// Scene: a built-in name (`hinge scenes`) or a TOML file.
     pub scene: String,
-    /// The measured shape: a mesh file (OBJ, OFF or PLY) with the scene mesh's vertices and faces.
+    /// The measured shape: a mesh file (OBJ, OFF, PLY or STL) with the scene mesh's vertices and faces.
     #[arg(long)]
     pub target: PathBuf,
     /// Scene keys to fit, comma-separated: material.young, material.thickness, material.density,

@@ -70,6 +70,7 @@ pub fn frame_bytes(
         MeshFormat::Ply => 512 + 24 * n_vertices as u64 + 13 * n_triangles as u64,
         // OFF writes what OBJ writes, with 0-based indices.
         MeshFormat::Obj | MeshFormat::Off => obj_frame_bytes(n_vertices, n_triangles),
+        MeshFormat::Stl => 84 + 50 * n_triangles as u64,
     }
 }
 

@@ -36,7 +36,7 @@ struct Cli {
 enum Command {
     /// Topology and hinge-angle statistics of a mesh.
     Stats {
-        /// Rest mesh (OBJ, OFF or PLY, by extension). Default: an N×N unit grid.
+        /// Rest mesh (OBJ, OFF, PLY or STL, by extension). Default: an N×N unit grid.
         #[arg(long)]
         rest: Option<std::path::PathBuf>,
         /// Deformed positions (a mesh file with the rest mesh's vertices in its order, its faces in any order and
@@ -190,7 +190,7 @@ fn scenes(action: Option<&str>, name: Option<&str>) -> Result<(), String> {
     }
 }
 
-/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF or PLY), with how that file counts its
+/// Reads a deformed state of `rest` from a mesh file (OBJ, OFF, PLY or STL), with how that file counts its
 /// vertices and faces. Only its positions are used: its vertices must be the rest mesh's, in the same
 /// order, and its faces the rest mesh's, in any order and with their corners in any rotation (as another
 /// tool may write them back), else the first face that is not the rest mesh's is named.

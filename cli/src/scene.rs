@@ -104,7 +104,7 @@ pub struct MeshSpec {
     /// `forward`, `backward` or `alternating`.
     #[serde(default = "default_diagonal")]
     pub diagonal: String,
-    /// A mesh file instead of a grid (OBJ, OFF or PLY by extension; relative to the scene file).
+    /// A mesh file instead of a grid (OBJ, OFF, PLY or STL by extension; relative to the scene file).
     pub obj: Option<PathBuf>,
     /// A closed surface generated in code instead of a grid: `icosphere` (a subdivided icosahedron centred
     /// at `origin`, `10·4^subdivisions + 2` vertices; `--resolution N` sets the subdivisions).

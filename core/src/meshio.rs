@@ -1,12 +1,16 @@
-//! Mesh files by extension: Wavefront OBJ, OFF and PLY (ASCII, binary little and big endian).
+//! Mesh files by extension: Wavefront OBJ, OFF, PLY (ASCII, binary little and big endian) and STL (ASCII
+//! and binary).
 //!
-//! [`read_mesh`] picks the reader from the file's extension (`.obj`, `.off`, `.ply`, any case) and keeps
-//! the file's vertex order in every format (vertex `i` of the mesh is the file's `i`-th vertex).
+//! [`read_mesh`] picks the reader from the file's extension (`.obj`, `.off`, `.ply`, `.stl`, any case) and
+//! keeps the file's vertex order in every format with vertices (vertex `i` of the mesh is the file's `i`-th
+//! vertex). STL has none — each facet lists its own corners, as CAD tools export — so its corners are
+//! welded where their positions are equal, vertices numbered in order of first appearance; a message names
+//! a vertex by the facet (and line) it first appears in.
 //! Polygons with more than three corners are fan-triangulated (corner 0 with each following pair, in the
 //! file's order); [`MeshFile::polygons_split`] says how many were, so a front end can tell the user.
 //!
 //! Errors name the file and count as the file does: OBJ vertices and faces from 1 with the line number; OFF
-//! and PLY vertices and faces from 0 (each message says which). A file whose content does not match its
+//! and PLY vertices and faces from 0; STL facets from 1 (each message says which). A file whose content does not match its
 //! extension, or that has no triangles, is an error saying which format it was read as.
 //!
 //! OBJ as exporters write it: a UTF-8 byte-order mark and CRLF line ends, `#` comments after statements,
@@ -37,43 +41,57 @@ pub enum MeshFormat {
     Off,
     /// Polygon File Format (ASCII or binary; 0-based indices).
     Ply,
+    /// Stereolithography, as CAD tools export (ASCII or binary; facets with their own corners, welded
+    /// where positions are equal; facets and the welded vertices, in order of first appearance, from 1).
+    Stl,
 }
 
 impl MeshFormat {
-    /// The format of a path's extension (case-insensitive), if it is one of the three.
+    /// The format of a path's extension (case-insensitive), if it is one of the four.
     pub fn from_path(path: &Path) -> Option<Self> {
         let ext = path.extension()?.to_str()?.to_ascii_lowercase();
         match ext.as_str() {
             "obj" => Some(MeshFormat::Obj),
             "off" => Some(MeshFormat::Off),
             "ply" => Some(MeshFormat::Ply),
+            "stl" => Some(MeshFormat::Stl),
             _ => None,
         }
     }
 
-    /// `OBJ`, `OFF` or `PLY`.
+    /// `OBJ`, `OFF`, `PLY` or `STL`.
     pub fn name(self) -> &'static str {
         match self {
             MeshFormat::Obj => "OBJ",
             MeshFormat::Off => "OFF",
             MeshFormat::Ply => "PLY",
+            MeshFormat::Stl => "STL",
         }
     }
 
-    /// `obj`, `off` or `ply`.
+    /// `obj`, `off`, `ply` or `stl`.
     pub fn extension(self) -> &'static str {
         match self {
             MeshFormat::Obj => "obj",
             MeshFormat::Off => "off",
             MeshFormat::Ply => "ply",
+            MeshFormat::Stl => "stl",
         }
     }
 
-    /// The first index of the format's vertex and face numbering (1 for OBJ, 0 for OFF and PLY).
+    /// The first index of the format's vertex and face numbering (1 for OBJ and STL, 0 for OFF and PLY).
     pub fn first_index(self) -> usize {
         match self {
-            MeshFormat::Obj => 1,
+            MeshFormat::Obj | MeshFormat::Stl => 1,
             MeshFormat::Off | MeshFormat::Ply => 0,
+        }
+    }
+
+    /// What the format calls a face: `facet` for STL, `face` otherwise.
+    fn face_word(self) -> &'static str {
+        match self {
+            MeshFormat::Stl => "facet",
+            _ => "face",
         }
     }
 }
@@ -144,8 +162,8 @@ pub enum MeshFileError {
         /// The I/O error.
         source: std::io::Error,
     },
-    /// The extension is not `.obj`, `.off` or `.ply`.
-    #[error("{path}: unknown mesh file extension (expected .obj, .off or .ply)")]
+    /// The extension is not `.obj`, `.off`, `.ply` or `.stl`.
+    #[error("{path}: unknown mesh file extension (expected .obj, .off, .ply or .stl)")]
     UnknownExtension {
         /// The file.
         path: String,
@@ -188,9 +206,12 @@ pub enum MeshFileError {
 pub(crate) struct Raw {
     pub(crate) positions: Vec<Vector3<f64>>,
     pub(crate) faces: Vec<Vec<usize>>,
-    /// 1-based lines of the vertices and faces (OBJ and OFF; empty for PLY).
+    /// 1-based lines of the vertices and faces (OBJ, OFF and ASCII STL; empty for PLY and binary STL).
     pub(crate) vertex_lines: Vec<usize>,
     pub(crate) face_lines: Vec<usize>,
+    /// For each vertex, the (0-based) face it first appears in (STL, whose vertices are welded corners;
+    /// empty for the other formats).
+    pub(crate) vertex_faces: Vec<usize>,
     /// Texture coordinates of each face's corners (parallel to `faces`; `None` for a face without them).
     pub(crate) face_uvs: Vec<Option<Vec<[f64; 2]>>>,
 }
@@ -236,6 +257,7 @@ pub fn read_mesh_from(
         MeshFormat::Obj => parse_obj(reader).map_err(parse)?,
         MeshFormat::Off => parse_off(reader).map_err(parse)?,
         MeshFormat::Ply => parse_ply(reader).map_err(parse)?,
+        MeshFormat::Stl => parse_stl(reader).map_err(parse)?,
     };
     let mut triangles = Vec::with_capacity(raw.faces.len());
     let mut face_of_triangle = Vec::with_capacity(raw.faces.len());
@@ -268,6 +290,7 @@ pub fn read_mesh_from(
         face_of_triangle: face_of_triangle.clone(),
         vertex_lines: raw.vertex_lines,
         face_lines: raw.face_lines,
+        vertex_faces: raw.vertex_faces,
     };
     match TriMesh::new(raw.positions, triangles) {
         Ok(mesh) => Ok(MeshFile {
@@ -297,14 +320,21 @@ pub struct FileNumbering {
     face_of_triangle: Vec<usize>,
     vertex_lines: Vec<usize>,
     face_lines: Vec<usize>,
+    vertex_faces: Vec<usize>,
 }
 
 impl ElementNames for FileNumbering {
     fn vertex(&self, v: usize) -> String {
         let n = v + self.format.first_index();
-        match self.vertex_lines.get(v) {
-            Some(line) => format!("vertex {n} (line {line})"),
-            None => format!("vertex {n}"),
+        let line = self.vertex_lines.get(v).map(|l| format!("line {l}"));
+        // An STL file has no vertex list: say where the vertex first appears.
+        let facet = self
+            .vertex_faces
+            .get(v)
+            .map(|f| format!("first in facet {}", f + self.format.first_index()));
+        match [facet, line].into_iter().flatten().collect::<Vec<_>>() {
+            at if at.is_empty() => format!("vertex {n}"),
+            at => format!("vertex {n} ({})", at.join(", ")),
         }
     }
 
@@ -315,9 +345,10 @@ impl ElementNames for FileNumbering {
     fn triangle(&self, t: usize) -> String {
         let f = self.face_of_triangle.get(t).copied().unwrap_or(t);
         let n = f + self.format.first_index();
+        let word = self.format.face_word();
         match self.face_lines.get(f) {
-            Some(line) => format!("face {n} (line {line})"),
-            None => format!("face {n}"),
+            Some(line) => format!("{word} {n} (line {line})"),
+            None => format!("{word} {n}"),
         }
     }
 }
@@ -483,6 +514,7 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
         faces: Vec::new(),
         vertex_lines: Vec::new(),
         face_lines: Vec::new(),
+        vertex_faces: Vec::new(),
         face_uvs: Vec::new(),
     };
     let mut texcoords: Vec<[f64; 2]> = Vec::new();
@@ -641,6 +673,7 @@ fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
         faces: Vec::with_capacity(nf.min(PREALLOCATE)),
         vertex_lines: Vec::with_capacity(nv.min(PREALLOCATE)),
         face_lines: Vec::with_capacity(nf.min(PREALLOCATE)),
+        vertex_faces: Vec::new(),
         face_uvs: Vec::with_capacity(nf.min(PREALLOCATE)),
     };
     for v in 0..nv {
@@ -695,6 +728,219 @@ fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
     Ok(raw)
 }
 
+/// Welds STL corners into vertices: equal positions (bitwise, `-0.0` as `+0.0`) are one vertex, numbered
+/// in order of first appearance.
+struct Welder {
+    index: std::collections::HashMap<[u64; 3], usize>,
+    raw: Raw,
+}
+
+impl Welder {
+    fn new() -> Self {
+        Self {
+            index: std::collections::HashMap::new(),
+            raw: Raw {
+                positions: Vec::new(),
+                faces: Vec::new(),
+                vertex_lines: Vec::new(),
+                face_lines: Vec::new(),
+                vertex_faces: Vec::new(),
+                face_uvs: Vec::new(),
+            },
+        }
+    }
+
+    /// Adds a facet of `corners` (with the line of each corner and of the facet, for ASCII files).
+    fn facet(&mut self, corners: &[(Vector3<f64>, usize)], line: Option<usize>) {
+        let face = self.raw.faces.len();
+        let mut poly = Vec::with_capacity(corners.len());
+        for &(p, corner_line) in corners {
+            let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+            let next = self.raw.positions.len();
+            let v = *self.index.entry(key).or_insert(next);
+            if v == next {
+                self.raw.positions.push(p);
+                self.raw.vertex_faces.push(face);
+                if line.is_some() {
+                    self.raw.vertex_lines.push(corner_line);
+                }
+            }
+            poly.push(v);
+        }
+        self.raw.faces.push(poly);
+        if let Some(l) = line {
+            self.raw.face_lines.push(l);
+        }
+    }
+}
+
+/// STL, ASCII or binary. A file is binary when its length is what the facet count at bytes 80–84 says
+/// (84 + 50 per facet; binary headers often start with `solid` too), else ASCII when it starts with
+/// `solid`. ASCII keywords in any case; several `solid`s in one file; a loop of more than three vertices is a
+/// polygon (fanned like the other formats').
+fn parse_stl(mut reader: impl BufRead) -> Result<Raw, String> {
+    let mut bytes = Vec::new();
+    reader
+        .read_to_end(&mut bytes)
+        .map_err(|e| format!("cannot read: {e}"))?;
+    let count = bytes
+        .get(80..84)
+        .and_then(|c| <[u8; 4]>::try_from(c).ok())
+        .map(u32::from_le_bytes);
+    let text_start = bytes.strip_prefix("\u{feff}".as_bytes()).unwrap_or(&bytes);
+    let starts_solid = text_start
+        .iter()
+        .skip_while(|b| b.is_ascii_whitespace())
+        .take(5)
+        .map(u8::to_ascii_lowercase)
+        .eq(*b"solid");
+    // A binary header may start with `solid` too: text decides between ASCII and a damaged binary file.
+    let text = starts_solid && std::str::from_utf8(text_start).is_ok();
+    match count {
+        Some(n) if bytes.len() as u64 == 84 + 50 * u64::from(n) => Ok(parse_stl_binary(&bytes, n)),
+        _ if text => parse_stl_ascii(text_start),
+        Some(n) => Err(format!(
+            "a binary STL of {n} facets (the count at bytes 80-84) has {} bytes, this file has {} \
+             (truncated?), and it is not ASCII STL text",
+            84 + 50 * u64::from(n),
+            bytes.len()
+        )),
+        None if starts_solid => Err("the file starts with `solid` but is not text".into()),
+        None => Err(format!(
+            "{} bytes: neither an ASCII STL (starting with `solid`) nor a binary one (an 84-byte header)",
+            bytes.len()
+        )),
+    }
+}
+
+fn parse_stl_binary(bytes: &[u8], n: u32) -> Raw {
+    let mut w = Welder::new();
+    let f32_at = |o: usize| {
+        bytes
+            .get(o..o + 4)
+            .and_then(|c| <[u8; 4]>::try_from(c).ok())
+            .map_or(f64::NAN, |c| f64::from(f32::from_le_bytes(c)))
+    };
+    for i in 0..n as usize {
+        // 12 bytes of normal (not used: the corners' order is the orientation), then three corners.
+        let o = 84 + 50 * i + 12;
+        let corners: Vec<(Vector3<f64>, usize)> = (0..3)
+            .map(|k| {
+                let c = o + 12 * k;
+                (Vector3::new(f32_at(c), f32_at(c + 4), f32_at(c + 8)), 0)
+            })
+            .collect();
+        w.facet(&corners, None);
+    }
+    w.raw
+}
+
+fn parse_stl_ascii(bytes: &[u8]) -> Result<Raw, String> {
+    let text = std::str::from_utf8(bytes).map_err(|_| "the file is not text".to_string())?;
+    let mut w = Welder::new();
+    let mut corners: Vec<(Vector3<f64>, usize)> = Vec::new();
+    let mut facet_line: Option<usize> = None;
+    for (i, line) in text.lines().enumerate() {
+        let lineno = i + 1;
+        let mut words = line.split_whitespace();
+        let Some(keyword) = words.next() else {
+            continue;
+        };
+        match keyword.to_ascii_lowercase().as_str() {
+            "facet" => {
+                if facet_line.is_some() {
+                    return Err(format!(
+                        "line {lineno}: `facet` before the last one's `endfacet`"
+                    ));
+                }
+                facet_line = Some(lineno);
+                corners.clear();
+            }
+            "vertex" => {
+                if facet_line.is_none() {
+                    return Err(format!("line {lineno}: `vertex` outside a facet"));
+                }
+                let mut c = [0.0; 3];
+                for (axis, slot) in c.iter_mut().enumerate() {
+                    let word = words.next().ok_or_else(|| {
+                        format!(
+                            "line {lineno}: vertex has fewer than 3 coordinates (missing {})",
+                            ["x", "y", "z"][axis]
+                        )
+                    })?;
+                    *slot = word
+                        .parse::<f64>()
+                        .map_err(|_| format!("line {lineno}: cannot parse coordinate `{word}`"))?;
+                }
+                corners.push((Vector3::new(c[0], c[1], c[2]), lineno));
+            }
+            "endfacet" => {
+                let Some(at) = facet_line.take() else {
+                    return Err(format!("line {lineno}: `endfacet` without `facet`"));
+                };
+                if corners.len() < 3 {
+                    return Err(format!(
+                        "line {at}: the facet has {} vertices (at least 3 are needed)",
+                        corners.len()
+                    ));
+                }
+                w.facet(&corners, Some(at));
+            }
+            // `solid NAME`, `outer loop`, `endloop`, `endsolid NAME`: structure only.
+            "solid" | "outer" | "endloop" | "endsolid" => {}
+            other => {
+                return Err(format!("line {lineno}: unknown keyword `{other}`"));
+            }
+        }
+    }
+    if let Some(at) = facet_line {
+        return Err(format!(
+            "line {at}: the facet has no `endfacet` (truncated?)"
+        ));
+    }
+    Ok(w.raw)
+}
+
+/// Writes a binary STL: an 80-byte header, the facet count, and per triangle its unit normal (zero for a
+/// degenerate one) and corners as f32 — STL stores single precision, so positions are rounded to f32.
+///
+/// # Errors
+/// The writer's I/O errors, and more than `u32::MAX` triangles.
+pub fn write_stl_to(
+    mut out: impl Write,
+    positions: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+) -> std::io::Result<()> {
+    let n = u32::try_from(triangles.len()).map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "more than 2^32 - 1 triangles",
+        )
+    })?;
+    let mut header = [b' '; 80];
+    let title = b"binary STL written by hinge";
+    header[..title.len()].copy_from_slice(title);
+    out.write_all(&header)?;
+    out.write_all(&n.to_le_bytes())?;
+    let at = |v: usize| {
+        positions.get(v).copied().ok_or_else(|| {
+            std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("no vertex {v}"))
+        })
+    };
+    for t in triangles {
+        let [a, b, c] = [at(t[0])?, at(t[1])?, at(t[2])?];
+        let normal = (b - a).cross(&(c - a));
+        let normal = normal.try_normalize(0.0).unwrap_or_else(Vector3::zeros);
+        for p in [normal, a, b, c] {
+            for k in 0..3 {
+                out.write_all(&(p[k] as f32).to_le_bytes())?;
+            }
+        }
+        out.write_all(&[0, 0])?;
+    }
+    out.flush()
+}
+
 fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
     use ply_rs_bw::parser::Parser;
     use ply_rs_bw::ply::{DefaultElement, Property};
@@ -746,6 +992,7 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
         faces: Vec::new(),
         vertex_lines: Vec::new(),
         face_lines: Vec::new(),
+        vertex_faces: Vec::new(),
         face_uvs: Vec::new(),
     };
     // Per-vertex texture coordinates under any of their usual names.
@@ -931,8 +1178,9 @@ pub fn write_off_to(
     out.flush()
 }
 
-/// Writes a mesh (or a deformed state of it) in the format of `path`'s extension: OBJ, OFF, or binary
-/// little-endian PLY.
+/// Writes a mesh (or a deformed state of it) in the format of `path`'s extension: OBJ, OFF, binary
+/// little-endian PLY, or binary STL (single precision, and its vertices only as corners: read back, vertices
+/// are renumbered in order of first appearance).
 ///
 /// # Errors
 /// [`MeshFileError::UnknownExtension`] or [`MeshFileError::Io`].
@@ -954,6 +1202,7 @@ pub fn write_mesh(
         MeshFormat::Obj => crate::obj::write_obj_to(out, positions, triangles),
         MeshFormat::Off => write_off_to(out, positions, triangles),
         MeshFormat::Ply => write_ply_to(out, positions, triangles, PlyEncoding::BinaryLittleEndian),
+        MeshFormat::Stl => write_stl_to(out, positions, triangles),
     }
     .map_err(io)
 }

@@ -244,6 +244,163 @@ fn vertices_split_along_a_seam_are_found() {
     );
 }
 
+/// `mesh` with its positions rounded to f32 (what STL stores).
+fn single_precision(mesh: &TriMesh) -> TriMesh {
+    let x = mesh
+        .positions()
+        .iter()
+        .map(|p| p.map(|c| f64::from(c as f32)))
+        .collect();
+    TriMesh::new(x, mesh.triangles().to_vec()).unwrap()
+}
+
+/// `mesh` as an ASCII STL as CAD tools write it: upper-case keywords on some lines, CRLF, two solids, normals.
+fn ascii_stl(mesh: &TriMesh) -> String {
+    let x = mesh.positions();
+    let half = mesh.n_triangles() / 2;
+    let mut s = String::from("solid part_one\r\n");
+    for (k, t) in mesh.triangles().iter().enumerate() {
+        if k == half {
+            s += "endsolid part_one\r\nsolid part_two\r\n";
+        }
+        let (facet, vertex) = if k % 2 == 0 {
+            ("facet normal", "vertex")
+        } else {
+            ("FACET NORMAL", "VERTEX")
+        };
+        s += &format!("  {facet} 0 0 1\r\n    outer loop\r\n");
+        for &v in t {
+            s += &format!("      {vertex} {:?} {:?} {:?}\r\n", x[v].x, x[v].y, x[v].z);
+        }
+        s += "    endloop\r\n  endfacet\r\n";
+    }
+    s + "endsolid part_two\r\n"
+}
+
+/// The mesh an STL of `mesh` reads back as: the vertices welded in order of first appearance.
+fn welded(mesh: &TriMesh) -> TriMesh {
+    let mut number = vec![usize::MAX; mesh.n_vertices()];
+    let mut positions = Vec::new();
+    let triangles = mesh
+        .triangles()
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                if number[v] == usize::MAX {
+                    number[v] = positions.len();
+                    positions.push(mesh.positions()[v]);
+                }
+                number[v]
+            })
+        })
+        .collect();
+    TriMesh::new(positions, triangles).unwrap()
+}
+
+#[test]
+fn stl_files_binary_and_ascii_weld_their_corners() {
+    let dir = tmp("stl");
+    for (name, mesh) in meshes() {
+        let mesh = single_precision(&mesh);
+        let expected = welded(&mesh);
+        // Binary, through a file (by extension), and ASCII: the same mesh, bitwise.
+        let path = dir.join("m.STL");
+        write_mesh(&path, mesh.positions(), mesh.triangles()).unwrap();
+        let binary = read_mesh(&path).unwrap();
+        assert_eq!(binary.format, MeshFormat::Stl);
+        assert_eq!(binary.mesh.positions(), expected.positions(), "{name}");
+        assert_eq!(binary.mesh.triangles(), expected.triangles(), "{name}");
+        assert_eq!(
+            binary.mesh.n_vertices(),
+            mesh.n_vertices(),
+            "{name}: every vertex welded once"
+        );
+        assert!(binary.topology().is_ok(), "{name}");
+        let ascii = read(ascii_stl(&mesh).as_bytes(), MeshFormat::Stl).unwrap();
+        assert_eq!(ascii.mesh.positions(), expected.positions(), "{name}");
+        assert_eq!(ascii.mesh.triangles(), expected.triangles(), "{name}");
+    }
+    // A binary STL whose header starts with `solid` (as many exporters write it) is binary by its size.
+    let mesh = single_precision(&irregular_sheet(4, 3, 2).unwrap());
+    let mut bytes = Vec::new();
+    hinge_core::meshio::write_stl_to(&mut bytes, mesh.positions(), mesh.triangles()).unwrap();
+    bytes[..5].copy_from_slice(b"solid");
+    let m = read(&bytes, MeshFormat::Stl).unwrap();
+    assert_eq!(m.mesh.triangles(), welded(&mesh).triangles());
+    // Truncated binary: the sizes, one line.
+    let e = message(&bytes[..bytes.len() - 7], MeshFormat::Stl);
+    assert!(e.contains("(truncated?)") && e.contains("STL"), "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn stl_errors_name_facets_and_lines() {
+    let facet = |a: &str, b: &str, c: &str| {
+        format!(
+            "facet normal 0 0 1\nouter loop\nvertex {a}\nvertex {b}\nvertex {c}\nendloop\nendfacet\n"
+        )
+    };
+    // A facet with two corners at one position: its welded vertex twice.
+    let text = format!(
+        "solid t\n{}{}endsolid t\n",
+        facet("0 0 0", "1 0 0", "0 1 0"),
+        facet("1 0 0", "1 1 0", "1 0 0")
+    );
+    let e = message(text.as_bytes(), MeshFormat::Stl);
+    assert!(
+        e.contains("facet 2 (line 9) names vertex 2 more than once")
+            && e.contains("STL numbering: from 1"),
+        "{e}"
+    );
+    // A zero-area facet (common in CAD tessellations) names its vertices by where they first appear.
+    let text = format!(
+        "solid t\n{}{}endsolid t\n",
+        facet("0 0 0", "1 0 0", "0 1 0"),
+        facet("1 0 0", "2 0 0", "3 0 0")
+    );
+    let e = message(text.as_bytes(), MeshFormat::Stl);
+    assert!(e.contains("facet 2 (line 9) has zero area"), "{e}");
+    // A non-finite coordinate: the vertex by its facet and line.
+    let text = format!(
+        "solid t\n{}endsolid t\n",
+        facet("0 0 0", "1 nan 0", "0 1 0")
+    );
+    let e = message(text.as_bytes(), MeshFormat::Stl);
+    assert!(
+        e.contains("vertex 2 (first in facet 1, line 5): coordinate y"),
+        "{e}"
+    );
+    // Syntax: a bad coordinate, a facet of two vertices, an unknown keyword, a missing endfacet.
+    for (text, expected) in [
+        (
+            "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 x\n",
+            "line 4: cannot parse coordinate `x`",
+        ),
+        (
+            "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\nendfacet\n",
+            "line 2: the facet has 2 vertices",
+        ),
+        (
+            "solid t\nfacet normal 0 0 1\nouterloop\n",
+            "line 3: unknown keyword `outerloop`",
+        ),
+        (
+            "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n",
+            "line 2: the facet has no `endfacet`",
+        ),
+        (
+            "solid t\nvertex 0 0 0\n",
+            "line 2: `vertex` outside a facet",
+        ),
+    ] {
+        let e = message(text.as_bytes(), MeshFormat::Stl);
+        assert!(e.contains(expected), "{e}");
+    }
+    // Neither kind.
+    let e = message(b"hello", MeshFormat::Stl);
+    assert!(e.contains("neither an ASCII STL"), "{e}");
+}
+
 #[test]
 fn polygons_are_fan_triangulated_in_every_format() {
     // A 2×1 quad strip and a pentagon: 1 + 1 + 3 … every polygon fanned from its first corner.
@@ -518,16 +675,26 @@ fn random_bytes_never_panic() {
     write_off_to(&mut off, mesh.positions(), mesh.triangles()).unwrap();
     let mut obj = Vec::new();
     hinge_core::obj::write_obj_to(&mut obj, mesh.positions(), mesh.triangles()).unwrap();
+    let mut stl = Vec::new();
+    hinge_core::meshio::write_stl_to(&mut stl, mesh.positions(), mesh.triangles()).unwrap();
+    let stl_text = ascii_stl(&mesh).into_bytes();
     for _ in 0..300 {
         let len = (rng.next_u64() % 400) as usize;
         let bytes: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
-        for f in [MeshFormat::Obj, MeshFormat::Off, MeshFormat::Ply] {
+        for f in [
+            MeshFormat::Obj,
+            MeshFormat::Off,
+            MeshFormat::Ply,
+            MeshFormat::Stl,
+        ] {
             samples.push((bytes.clone(), f));
         }
         for (base, f) in [
             (&valid, MeshFormat::Ply),
             (&off, MeshFormat::Off),
             (&obj, MeshFormat::Obj),
+            (&stl, MeshFormat::Stl),
+            (&stl_text, MeshFormat::Stl),
         ] {
             let mut b = base.clone();
             for _ in 0..3 {
