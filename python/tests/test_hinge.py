@@ -749,3 +749,24 @@ def test_smoothed_contact_is_c2_matches_finite_differences_and_rejects_bad_lengt
     for bad in (-1e-3, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="smoothing"):
             hinge.System(V, F).add_sphere((0, 0, -1), 0.9, kappa, margin=delta, smoothing=bad)
+
+
+def test_mesh_files_read_and_write_in_every_format(tmp_path):
+    V, F = sheet(5, 4, 13, jitter=0.05)
+    V = V.astype(np.float32).astype(np.float64)  # what STL stores
+    for ext in ["obj", "off", "ply", "stl"]:
+        path = tmp_path / f"m.{ext}"
+        hinge.write_mesh(path, V, F)
+        V2, F2 = hinge.read_mesh(path)
+        assert V2.dtype == np.float64 and F2.dtype == np.int64
+        if ext == "stl":
+            # Welded in order of first appearance: the same triangles' positions.
+            assert np.array_equal(V2[F2], V[F]) and len(V2) == len(V)
+        else:
+            assert np.array_equal(V2, V) and np.array_equal(F2, F)
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\n# faces\nf 1 2 3\nf 2 4 9\n")
+    with pytest.raises(ValueError, match=r"face 2 \(line 7\) names vertex 9"):
+        hinge.read_mesh(bad)
+    with pytest.raises(ValueError, match="unknown mesh file extension"):
+        hinge.read_mesh(tmp_path / "m.stp")

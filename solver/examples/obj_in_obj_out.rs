@@ -1,7 +1,7 @@
-//! Bring your own mesh: read an OBJ (or OFF, or PLY), hang it by its lowest-x vertices under gravity (tan
+//! Bring your own mesh: read an OBJ (or OFF, PLY or STL), hang it by its lowest-x vertices under gravity (tan
 //! bending + StVK membrane, implicit Euler with damping), write the result in the output's format.
 //!
-//! Run with `cargo run --release -p hinge-solver --example obj_in_obj_out [-- INPUT.obj|.off|.ply
+//! Run with `cargo run --release -p hinge-solver --example obj_in_obj_out [-- INPUT.obj|.off|.ply|.stl
 //! [OUTPUT.obj|.off|.ply]]`.
 //! Without arguments it writes a small built-in mesh to `out/obj_in_obj_out/input.obj` and uses that.
 

@@ -23,7 +23,7 @@ import scipy.sparse as _sp
 from . import _hinge
 
 __all__ = ["BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
-           "adjoint_gradient", "fit", "fit_scene"]
+           "adjoint_gradient", "fit", "fit_scene", "read_mesh", "write_mesh"]
 
 
 def _vertices(V):
@@ -61,6 +61,20 @@ def _param(name, value):
 def hinges(V, F):
     """The (h, 4) int64 array of hinge stencils (x0, x1, x2, x3) of a mesh, in hinge order."""
     return _hinge.hinges(_vertices(V), _faces(F))
+
+
+def read_mesh(path):
+    """``(V, F)`` of a mesh file — OBJ, OFF, PLY or STL, by extension — as float64 (n, 3) and int64 (m, 3)
+    arrays. Polygons are fan-triangulated, STL corners welded where their positions are equal (vertices in
+    order of first appearance); a malformed file or one no hinge energy takes (a non-manifold edge, opposite
+    orientations) raises ``ValueError`` naming the face and line as the file counts them."""
+    return _hinge.read_mesh(str(path))
+
+
+def write_mesh(path, V, F):
+    """Writes ``(V, F)`` in the format of the extension: OBJ, OFF, binary PLY or binary STL (single
+    precision)."""
+    _hinge.write_mesh(str(path), _vertices(V), _faces(F))
 
 
 def energies():
