@@ -502,6 +502,29 @@ fn obj_statements(
     })
 }
 
+/// Why a text vertex record has no position.
+#[derive(Debug, Error)]
+enum Coordinates {
+    #[error("vertex has fewer than 3 coordinates (missing {0})")]
+    Missing(&'static str),
+    #[error("cannot parse coordinate `{0}`")]
+    Unparsable(String),
+}
+
+/// The next three words as x, y, z (OBJ `v`, OFF vertex lines, STL `vertex`); further words are ignored.
+fn three_coordinates<'a>(
+    words: &mut impl Iterator<Item = &'a str>,
+) -> Result<Vector3<f64>, Coordinates> {
+    let mut c = [0.0; 3];
+    for (slot, axis) in c.iter_mut().zip(["x", "y", "z"]) {
+        let w = words.next().ok_or(Coordinates::Missing(axis))?;
+        *slot = w
+            .parse::<f64>()
+            .map_err(|_| Coordinates::Unparsable(w.to_string()))?;
+    }
+    Ok(Vector3::new(c[0], c[1], c[2]))
+}
+
 fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
     parse_obj_records(reader).map_err(|e| format!("line {}: {}", e.line, e.message))
 }
@@ -527,19 +550,8 @@ pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> 
         let mut words = line.split_whitespace();
         match words.next() {
             Some("v") => {
-                let mut c = [0.0; 3];
-                for (axis, slot) in c.iter_mut().enumerate() {
-                    let w = words.next().ok_or_else(|| {
-                        at(format!(
-                            "vertex has fewer than 3 coordinates (missing {})",
-                            ["x", "y", "z"][axis]
-                        ))
-                    })?;
-                    *slot = w
-                        .parse::<f64>()
-                        .map_err(|_| at(format!("cannot parse coordinate `{w}`")))?;
-                }
-                raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+                let p = three_coordinates(&mut words).map_err(|e| at(e.to_string()))?;
+                raw.positions.push(p);
                 raw.vertex_lines.push(lineno);
             }
             Some("vt") => {
@@ -682,20 +694,13 @@ fn parse_off(reader: impl BufRead) -> Result<Raw, String> {
                 "the file ends after {v} of its {nv} vertices (vertex {v}, 0-based, is missing)"
             )
         })??;
-        let mut c = [0.0; 3];
-        let mut words = l.split_whitespace();
-        for (axis, slot) in c.iter_mut().enumerate() {
-            let w = words.next().ok_or_else(|| {
-                format!(
-                    "line {n}: vertex {v} (0-based) has fewer than 3 coordinates (missing {})",
-                    ["x", "y", "z"][axis]
-                )
-            })?;
-            *slot = w.parse().map_err(|_| {
-                format!("line {n}: vertex {v} (0-based): cannot parse coordinate `{w}`")
-            })?;
-        }
-        raw.positions.push(Vector3::new(c[0], c[1], c[2]));
+        let p = three_coordinates(&mut l.split_whitespace()).map_err(|e| match e {
+            Coordinates::Missing(axis) => format!(
+                "line {n}: vertex {v} (0-based) has fewer than 3 coordinates (missing {axis})"
+            ),
+            e => format!("line {n}: vertex {v} (0-based): {e}"),
+        })?;
+        raw.positions.push(p);
         raw.vertex_lines.push(n);
     }
     for f in 0..nf {
@@ -860,19 +865,8 @@ fn parse_stl_ascii(bytes: &[u8]) -> Result<Raw, String> {
                 if facet_line.is_none() {
                     return Err(format!("line {lineno}: `vertex` outside a facet"));
                 }
-                let mut c = [0.0; 3];
-                for (axis, slot) in c.iter_mut().enumerate() {
-                    let word = words.next().ok_or_else(|| {
-                        format!(
-                            "line {lineno}: vertex has fewer than 3 coordinates (missing {})",
-                            ["x", "y", "z"][axis]
-                        )
-                    })?;
-                    *slot = word
-                        .parse::<f64>()
-                        .map_err(|_| format!("line {lineno}: cannot parse coordinate `{word}`"))?;
-                }
-                corners.push((Vector3::new(c[0], c[1], c[2]), lineno));
+                let p = three_coordinates(&mut words).map_err(|e| format!("line {lineno}: {e}"))?;
+                corners.push((p, lineno));
             }
             "endfacet" => {
                 let Some(at) = facet_line.take() else {

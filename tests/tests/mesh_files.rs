@@ -462,6 +462,37 @@ fn mesh_errors_count_as_the_file_does() {
         e.contains("face 1 names vertex 8") && e.contains("PLY numbering: from 0"),
         "{e}"
     );
+    // Coordinates that are missing or not numbers, in the three text formats (one reader of x, y, z).
+    for (bytes, format, expected) in [
+        (
+            &b"v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n"[..],
+            MeshFormat::Obj,
+            "line 2: cannot parse coordinate `x`",
+        ),
+        (
+            b"v 0 0 0\nv 1 0\nv 0 1 0\nf 1 2 3\n",
+            MeshFormat::Obj,
+            "line 2: vertex has fewer than 3 coordinates (missing z)",
+        ),
+        (
+            b"OFF\n3 1 0\n0 0 0\n1 0\n0 1 0\n3 0 1 2\n",
+            MeshFormat::Off,
+            "line 4: vertex 1 (0-based) has fewer than 3 coordinates (missing z)",
+        ),
+        (
+            b"OFF\n3 1 0\n0 0 0\n1 q 0\n0 1 0\n3 0 1 2\n",
+            MeshFormat::Off,
+            "line 4: vertex 1 (0-based): cannot parse coordinate `q`",
+        ),
+        (
+            b"solid s\nfacet normal 0 0 1\nouter loop\nvertex 0 0\n",
+            MeshFormat::Stl,
+            "line 4: vertex has fewer than 3 coordinates (missing z)",
+        ),
+    ] {
+        let e = message(bytes, format);
+        assert!(e.contains(expected), "{e}");
+    }
     // A non-finite coordinate names the vertex and its line; a repeated vertex names the face.
     let e = message(b"v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n", MeshFormat::Obj);
     assert!(
