@@ -203,6 +203,7 @@ pub enum MeshFileError {
 }
 
 /// Faces as read: polygons of vertex indices (already 0-based), and where they came from.
+#[derive(Default)]
 pub(crate) struct Raw {
     pub(crate) positions: Vec<Vector3<f64>>,
     pub(crate) faces: Vec<Vec<usize>>,
@@ -532,14 +533,7 @@ fn parse_obj(reader: impl BufRead) -> Result<Raw, String> {
 /// The `v` and `f` records of an OBJ file (faces of any corner count from 3), in file order; also what
 /// [`crate::obj::parse_obj`] reads.
 pub(crate) fn parse_obj_records(reader: impl BufRead) -> Result<Raw, LineError> {
-    let mut raw = Raw {
-        positions: Vec::new(),
-        faces: Vec::new(),
-        vertex_lines: Vec::new(),
-        face_lines: Vec::new(),
-        vertex_faces: Vec::new(),
-        face_uvs: Vec::new(),
-    };
+    let mut raw = Raw::default();
     let mut texcoords: Vec<[f64; 2]> = Vec::new();
     for record in obj_statements(reader) {
         let (lineno, line) = record?;
@@ -744,14 +738,7 @@ impl Welder {
     fn new() -> Self {
         Self {
             index: std::collections::HashMap::new(),
-            raw: Raw {
-                positions: Vec::new(),
-                faces: Vec::new(),
-                vertex_lines: Vec::new(),
-                face_lines: Vec::new(),
-                vertex_faces: Vec::new(),
-                face_uvs: Vec::new(),
-            },
+            raw: Raw::default(),
         }
     }
 
@@ -983,11 +970,7 @@ fn parse_ply(mut reader: impl BufRead) -> Result<Raw, String> {
         .ok_or_else(|| "no `vertex` element".to_string())?;
     let mut raw = Raw {
         positions: Vec::with_capacity(vertices.len()),
-        faces: Vec::new(),
-        vertex_lines: Vec::new(),
-        face_lines: Vec::new(),
-        vertex_faces: Vec::new(),
-        face_uvs: Vec::new(),
+        ..Raw::default()
     };
     // Per-vertex texture coordinates under any of their usual names.
     let uv_names = [("u", "v"), ("s", "t"), ("texture_u", "texture_v")];
