@@ -294,11 +294,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
 /// The mean drop of the vertices at the largest rest x (of the vertices in a face).
 fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
     let r = rest.positions();
-    let mut used = vec![false; r.len()];
-    rest.triangles()
-        .iter()
-        .flatten()
-        .for_each(|&v| used[v] = true);
+    let used = rest.vertices_in_faces();
     let xmax = (0..r.len())
         .filter(|&v| used[v])
         .map(|v| r[v].x)

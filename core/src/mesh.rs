@@ -110,13 +110,19 @@ impl TriMesh {
     /// after faces were deleted). No energy of the mesh acts on them and they carry no lumped mass, so the
     /// solvers of the command line and the Python package hold them where they are.
     pub fn unreferenced_vertices(&self) -> Vec<usize> {
+        let used = self.vertices_in_faces();
+        (0..used.len()).filter(|&v| !used[v]).collect()
+    }
+
+    /// For each vertex, whether some triangle has it as a corner.
+    pub fn vertices_in_faces(&self) -> Vec<bool> {
         let mut used = vec![false; self.positions.len()];
         for t in &self.triangles {
             for &v in t {
                 used[v] = true;
             }
         }
-        (0..used.len()).filter(|&v| !used[v]).collect()
+        used
     }
 
     /// Vertices of faces at exactly the position of a lower-numbered vertex of a face, as `(vertex, first)`
@@ -124,12 +130,7 @@ impl TriMesh {
     /// vertices along UV seams and hard edges this way: nothing couples the two copies, so the surface is cut
     /// there (no hinge, no shared membrane edge). Vertices in no face are left out.
     pub fn coincident_vertices(&self) -> Vec<(usize, usize)> {
-        let mut used = vec![false; self.positions.len()];
-        for t in &self.triangles {
-            for &v in t {
-                used[v] = true;
-            }
-        }
+        let used = self.vertices_in_faces();
         let key = |v: usize| {
             let p = &self.positions[v];
             // +0.0 and -0.0 are the same position.
