@@ -254,6 +254,19 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             .map_err(|e| format!("obstacles[{i}]: {e}"))?
             .with_smoothing(o.smoothing)
             .map_err(|e| format!("obstacles[{i}].smoothing: {e}"))?;
+        match o.model.as_str() {
+            "penalty" => {}
+            "barrier" => {
+                contact = contact
+                    .with_barrier()
+                    .map_err(|e| format!("obstacles[{i}].model: {e}"))?;
+            }
+            other => {
+                return Err(format!(
+                    "obstacles[{i}].model: unknown contact model {other:?} (penalty | barrier)"
+                ));
+            }
+        }
         if let Some(m) = &motion {
             contact = contact
                 .with_motion(m.clone())

@@ -277,6 +277,10 @@ pub enum DirectionSpec {
     Name(String),
 }
 
+fn default_contact_model() -> String {
+    "penalty".into()
+}
+
 fn default_warp_direction() -> DirectionSpec {
     DirectionSpec::Vector([1.0, 0.0, 0.0])
 }
@@ -304,6 +308,10 @@ pub struct ObstacleSpec {
     /// default: the quadratic penalty).
     #[serde(default)]
     pub smoothing: f64,
+    /// `penalty` (the default) or `barrier`: a logarithmic barrier reaching `margin` from the obstacle, with
+    /// steps bounded so that no vertex reaches it (`hinge_energies::contact::Contact::with_barrier`).
+    #[serde(default = "default_contact_model")]
+    pub model: String,
     /// A prescribed rigid motion (as `[[pins.groups]]`' `motion`): the sphere's centre, or the plane's point
     /// and normal, move with it; the obstacle given is its position at t = 0.
     pub motion: Option<MotionSpec>,

@@ -154,6 +154,14 @@ pub trait Energy: Send + Sync {
     /// always present and need not be listed).
     fn couplings(&self, out: &mut Vec<(usize, usize)>);
 
+    /// The largest fraction `t ∈ [0, 1]` of the straight move from `from` to `to` (all vertices at once) that
+    /// this energy admits: a barrier's continuous collision bound, below which the energy stays finite.
+    /// Newton starts its line search there. Default: 1 (no bound).
+    fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
+        let _ = (from, to);
+        1.0
+    }
+
     /// Binds to the system's pattern, which holds at least [`Energy::couplings`]: precompute slots here.
     ///
     /// # Errors
@@ -736,6 +744,18 @@ impl System {
             .collect();
         self.seconds.fill(0.0);
         out
+    }
+
+    /// The smallest [`Energy::max_step`] over the terms (1 when none bounds the move; 1 as well for slices of
+    /// the wrong length).
+    pub fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
+        if from.len() != self.n_vertices || to.len() != self.n_vertices {
+            return 1.0;
+        }
+        self.terms
+            .iter()
+            .map(|t| t.max_step(from, to))
+            .fold(1.0, f64::min)
     }
 
     /// Starts a time step for every term (see [`Energy::begin_step`]).

@@ -19,6 +19,21 @@
 //! so `∇E = −φ′ ∇d`, `Hess E = φ″ ∇d ∇dᵀ − φ′ Hess d`. `ε = 0` is the quadratic penalty above; deep
 //! penetrations are resisted as by it, shifted by `ε/2`.
 //!
+//! **Barrier** ([`Contact::with_barrier`]; scene key `[[obstacles]] model = "barrier"`). Instead of the
+//! penalty, the logarithmic barrier of incremental potential contact (Li et al. 2020):
+//! `b(d) = −κ (d − δ)² ln(d/δ)` for `0 < d < δ`, zero beyond (C² at `d = δ`: value, slope and curvature
+//! vanish there), infinite at `d → 0`, so that the margin δ becomes the barrier's reach and κ keeps the
+//! penalty's units (N/m). `b′ = −κ (2 (d − δ) ln(d/δ) + (d − δ)²/d)`,
+//! `b″ = −κ (2 ln(d/δ) + 4 (d − δ)/d − (d − δ)²/d²) > 0`; `∇E = b′ ∇d`, `Hess E = b″ ∇d ∇dᵀ + b′ Hess d`
+//! (the second term dropped by a definite request, as for the penalty). A vertex on or inside the obstacle is
+//! an error naming it. The barrier only holds if no step crosses the obstacle: [`Energy::max_step`] is the
+//! largest fraction of a straight move of all vertices that closes at most 90 % of any vertex's distance
+//! ([`BARRIER_GAP_KEPT`]; the root of a linear equation for a plane, of a quadratic for a sphere, so a fast
+//! vertex cannot pass through a sphere within one step): Newton's line search starts there, and implicit
+//! Euler starts a step from `x̂` or, where the move from the last state to `x̂` exceeds the bound, that
+//! fraction of the way. Every state Newton visits is then outside the obstacle, whatever the speeds and the
+//! time step, and a fast vertex does not start a step beyond a sphere it would have hit.
+//!
 //! **Moving obstacles.** [`Contact::with_motion`] gives the obstacle a rigid [`Motion`]: at time `t` a
 //! sphere's centre is at `motion.target(centre, t)`, a plane passes through `motion.target(point, t)` with
 //! its normal turned by the motion's rotation. [`Energy::set_time`] places it (the time steppers call it with
@@ -34,6 +49,10 @@ use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{ElementRef, EvalError};
 
 use crate::motion::Motion;
+
+/// The share of a vertex's distance to the obstacle that a barrier's step bound keeps
+/// ([`Energy::max_step`]): a step may close at most 90 % of the gap.
+pub const BARRIER_GAP_KEPT: f64 = 0.1;
 
 /// An analytic obstacle.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -64,6 +83,7 @@ pub struct Contact {
     stiffness: f64,
     margin: f64,
     smoothing: f64,
+    barrier: bool,
     n_vertices: usize,
     diag: Vec<usize>,
 }
@@ -116,6 +136,7 @@ impl Contact {
             stiffness,
             margin,
             smoothing: 0.0,
+            barrier: false,
             n_vertices,
             diag: Vec::new(),
         })
@@ -127,14 +148,61 @@ impl Contact {
     /// # Errors
     /// [`EvalError::Element`] for a negative or non-finite `smoothing`.
     pub fn with_smoothing(mut self, smoothing: f64) -> Result<Self, EvalError> {
-        if !(smoothing >= 0.0 && smoothing.is_finite()) {
+        if !(smoothing >= 0.0 && smoothing.is_finite()) || (self.barrier && smoothing != 0.0) {
             return Err(EvalError::Element {
                 element: "contact".into(),
-                message: format!("smoothing {smoothing} must be finite and non-negative"),
+                message: format!(
+                    "smoothing {smoothing} must be finite and non-negative (and 0 for a barrier)"
+                ),
             });
         }
         self.smoothing = smoothing;
         Ok(self)
+    }
+
+    /// A logarithmic barrier instead of the penalty (module documentation, Barrier): the margin δ becomes the
+    /// barrier's reach, which must be positive, and a vertex on or inside the obstacle is an error.
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for a zero margin, a smoothing (the barrier is C² by itself) or a moving
+    /// obstacle ([`Contact::with_motion`]: the barrier needs every step to start outside the obstacle, which
+    /// an obstacle moving into a resting vertex breaks; not supported yet).
+    pub fn with_barrier(mut self) -> Result<Self, EvalError> {
+        if !(self.margin > 0.0) || self.smoothing != 0.0 || self.motion.is_some() {
+            return Err(EvalError::Element {
+                element: "contact".into(),
+                message: format!(
+                    "a barrier needs a positive margin (its reach; got {}), no smoothing (got {}) and a \
+                     fixed obstacle (moving ones are not supported with the barrier yet)",
+                    self.margin, self.smoothing
+                ),
+            });
+        }
+        self.barrier = true;
+        Ok(self)
+    }
+
+    /// Whether this is the barrier ([`Contact::with_barrier`]).
+    pub fn is_barrier(&self) -> bool {
+        self.barrier
+    }
+
+    /// The barrier `b(d) = −κ (d − δ)² ln(d/δ)` of a distance `0 < d < δ` and its first two derivatives in
+    /// `d`; zero for `d ≥ δ`, `None` for `d ≤ 0` (module documentation, Barrier).
+    pub fn barrier(&self, d: f64) -> Option<(f64, f64, f64)> {
+        let (kappa, delta) = (self.stiffness, self.margin);
+        if !(d > 0.0) {
+            return None;
+        }
+        if d >= delta {
+            return Some((0.0, 0.0, 0.0));
+        }
+        let (e, l) = (d - delta, (d / delta).ln());
+        Some((
+            -kappa * e * e * l,
+            -kappa * (2.0 * e * l + e * e / d),
+            -kappa * (2.0 * l + 4.0 * e / d - e * e / (d * d)),
+        ))
     }
 
     /// The smoothing length ε ([`Contact::with_smoothing`]).
@@ -169,12 +237,19 @@ impl Contact {
     /// [`Contact::new`]); [`Energy::set_time`] places it.
     ///
     /// # Errors
-    /// [`EvalError::Element`] with [`Motion::check`]'s reason.
+    /// [`EvalError::Element`] with [`Motion::check`]'s reason, or for a barrier ([`Contact::with_barrier`]).
     pub fn with_motion(mut self, motion: Motion) -> Result<Self, EvalError> {
         motion.check().map_err(|why| EvalError::Element {
             element: "contact".into(),
             message: format!("obstacle motion: {why}"),
         })?;
+        if self.barrier {
+            return Err(EvalError::Element {
+                element: "contact".into(),
+                message: "obstacle motion: moving obstacles are not supported with the barrier yet"
+                    .into(),
+            });
+        }
         self.motion = Some((self.obstacle, motion));
         Ok(self)
     }
@@ -196,6 +271,43 @@ impl Contact {
                 normal: motion.direction(normal, t),
             },
         }
+    }
+
+    /// The fraction `t ∈ [0, 1]` of the straight move `p → q` at which the distance to the obstacle first
+    /// falls to `kept` times its value at `p` (1 if it never does, or if `p` is not outside the obstacle).
+    pub fn time_to_gap(&self, p: &Vector3<f64>, q: &Vector3<f64>, kept: f64) -> f64 {
+        let d0 = self.distance(p);
+        if !(d0 > 0.0) {
+            return 1.0;
+        }
+        let v = q - p;
+        let t = match self.obstacle {
+            Obstacle::Plane { normal, .. } => {
+                let rate = normal.dot(&v);
+                if rate < 0.0 {
+                    (1.0 - kept) * d0 / -rate
+                } else {
+                    1.0
+                }
+            }
+            Obstacle::Sphere { center, radius } => {
+                // |r + t v| = R with R = radius + kept·d0 < |r|: the smaller root of a t² + 2 b t + c = 0.
+                let r = p - center;
+                let big_r = radius + kept * d0;
+                let (a, b, c) = (
+                    v.norm_squared(),
+                    r.dot(&v),
+                    (r.norm() - big_r) * (r.norm() + big_r),
+                );
+                let disc = b * b - a * c;
+                if b >= 0.0 || disc < 0.0 {
+                    1.0
+                } else {
+                    c / (-b + disc.sqrt())
+                }
+            }
+        };
+        if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) }
     }
 
     /// Signed distance of `p` to the obstacle.
@@ -223,6 +335,17 @@ impl Energy for Contact {
     }
 
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+
+    fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
+        if !self.barrier {
+            return 1.0;
+        }
+        let mut t = 1.0_f64;
+        for (p, q) in from.iter().zip(to) {
+            t = t.min(self.time_to_gap(p, q, BARRIER_GAP_KEPT));
+        }
+        t
+    }
 
     fn set_time(&mut self, time: f64) -> Result<(), EvalError> {
         let Some((rest, motion)) = &self.motion else {
@@ -277,19 +400,37 @@ impl Energy for Contact {
                     )
                 }
             };
-            let s = delta - d;
-            if !(s > 0.0) {
-                continue;
-            }
-            let (phi, dphi, ddphi) = self.penalty(s);
+            // E = φ, ∇E = g1 ∇d, Hess E = g2 ∇d ∇dᵀ + g1 Hess d.
+            let (phi, g1, g2) = if self.barrier {
+                let Some((b, db, ddb)) = self.barrier(d) else {
+                    return Err(EvalError::AtElement {
+                        energy: "contact".into(),
+                        element: ElementRef::Vertex(i),
+                        message: format!(
+                            "the vertex is on or inside the obstacle (distance {d:e}): the barrier is infinite there"
+                        ),
+                    });
+                };
+                if b == 0.0 && db == 0.0 {
+                    continue;
+                }
+                (b, db, ddb)
+            } else {
+                let s = delta - d;
+                if !(s > 0.0) {
+                    continue;
+                }
+                let (phi, dphi, ddphi) = self.penalty(s);
+                (phi, -dphi, ddphi)
+            };
             e += phi;
             if request.gradient {
-                acc.add_gradient(i, &(grad_d * (-dphi)));
+                acc.add_gradient(i, &(grad_d * g1));
             }
             if request.hessian && !self.diag.is_empty() {
-                let mut h = grad_d * grad_d.transpose() * ddphi;
+                let mut h = grad_d * grad_d.transpose() * g2;
                 if let Some(hd) = hess_d.filter(|_| !request.definite) {
-                    h -= hd * dphi;
+                    h += hd * g1;
                 }
                 acc.add_block(self.diag[i], i, i, &h);
             }

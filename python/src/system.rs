@@ -64,6 +64,7 @@ enum Term {
         stiffness: f64,
         margin: f64,
         smoothing: f64,
+        barrier: bool,
     },
     Plane {
         point: [f64; 3],
@@ -71,6 +72,7 @@ enum Term {
         stiffness: f64,
         margin: f64,
         smoothing: f64,
+        barrier: bool,
     },
 }
 
@@ -121,6 +123,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             stiffness,
             margin,
             smoothing,
+            barrier,
         } => Box::new(
             Contact::new(
                 n,
@@ -132,6 +135,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
                 *margin,
             )
             .and_then(|c| c.with_smoothing(*smoothing))
+            .and_then(|c| if *barrier { c.with_barrier() } else { Ok(c) })
             .map_err(e)?,
         ),
         Term::Plane {
@@ -140,6 +144,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             stiffness,
             margin,
             smoothing,
+            barrier,
         } => Box::new(
             Contact::new(
                 n,
@@ -151,6 +156,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
                 *margin,
             )
             .and_then(|c| c.with_smoothing(*smoothing))
+            .and_then(|c| if *barrier { c.with_barrier() } else { Ok(c) })
             .map_err(e)?,
         ),
     })
@@ -342,8 +348,8 @@ impl PySystem {
     }
 
     /// Penalty contact with a sphere; `smoothing` > 0 makes the penalty C² over the first `smoothing` of
-    /// the margin (0: quadratic).
-    #[pyo3(signature = (center, radius, stiffness, margin=0.0, smoothing=0.0))]
+    /// the margin (0: quadratic); `barrier` a logarithmic barrier reaching `margin` instead.
+    #[pyo3(signature = (center, radius, stiffness, margin=0.0, smoothing=0.0, barrier=false))]
     fn add_sphere(
         &mut self,
         center: Vec<f64>,
@@ -351,6 +357,7 @@ impl PySystem {
         stiffness: f64,
         margin: f64,
         smoothing: f64,
+        barrier: bool,
     ) -> PyResult<()> {
         self.add(Term::Sphere {
             center: vec3("center", center)?,
@@ -358,12 +365,13 @@ impl PySystem {
             stiffness,
             margin,
             smoothing,
+            barrier,
         })
     }
 
-    /// Penalty contact with a plane (vertices pushed to the side `normal` points to); `smoothing` as for
-    /// `add_sphere`.
-    #[pyo3(signature = (point, normal, stiffness, margin=0.0, smoothing=0.0))]
+    /// Penalty contact with a plane (vertices pushed to the side `normal` points to); `smoothing` and
+    /// `barrier` as for `add_sphere`.
+    #[pyo3(signature = (point, normal, stiffness, margin=0.0, smoothing=0.0, barrier=false))]
     fn add_plane(
         &mut self,
         point: Vec<f64>,
@@ -371,6 +379,7 @@ impl PySystem {
         stiffness: f64,
         margin: f64,
         smoothing: f64,
+        barrier: bool,
     ) -> PyResult<()> {
         self.add(Term::Plane {
             point: vec3("point", point)?,
@@ -378,6 +387,7 @@ impl PySystem {
             stiffness,
             margin,
             smoothing,
+            barrier,
         })
     }
 

@@ -173,6 +173,40 @@ fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
             ),
             false,
         ),
+        (
+            "contact-sphere-barrier",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Sphere {
+                        center: Vector3::new(0.5, 0.4, -0.8),
+                        radius: 0.88,
+                    },
+                    300.0,
+                    0.06,
+                )
+                .and_then(Contact::with_barrier)
+                .unwrap(),
+            ),
+            false,
+        ),
+        (
+            "contact-plane-barrier",
+            Box::new(
+                Contact::new(
+                    n,
+                    Obstacle::Plane {
+                        point: Vector3::new(0.0, 0.0, -0.06),
+                        normal: Vector3::new(0.1, 0.0, 1.0),
+                    },
+                    300.0,
+                    0.08,
+                )
+                .and_then(Contact::with_barrier)
+                .unwrap(),
+            ),
+            false,
+        ),
     ]
 }
 
@@ -667,6 +701,71 @@ mod autodiff_oracle {
         );
     }
 
+    /// The barrier contact against num-dual on a sphere (whose curvature enters the Hessian) and a tilted
+    /// plane, with vertices deep in the barrier's reach, near its edge and outside it.
+    #[test]
+    fn barrier_contact_matches_num_dual() {
+        let def = vec![
+            Vector3::new(0.05, -0.02, 0.1),
+            Vector3::new(1.1, 0.2, -0.1),
+            Vector3::new(0.1, 1.0, 0.2),
+        ];
+        let x = flat::<9>(&def);
+        let kappa = 50.0;
+        // b(d) = −κ (d − δ)² ln(d/δ) for 0 < d < δ, written from the definition.
+        let b = |d: Dual2SVec64<9>, delta: f64| {
+            let e = d - delta;
+            -(e * e * (d / delta).ln()) * kappa
+        };
+        let sphere = (Vector3::new(0.3, 0.3, -0.8), 0.9);
+        let (point, normal) = (Vector3::new(0.2, 0.0, -0.1), Vector3::new(1.0, 0.2, 1.0));
+        let unit = normal.normalize();
+        let distance = |p: [Dual2SVec64<9>; 3], on_sphere: bool| {
+            if on_sphere {
+                let (c, r) = sphere;
+                norm([p[0] - c.x, p[1] - c.y, p[2] - c.z]) - r
+            } else {
+                (p[0] - point.x) * unit.x + (p[1] - point.y) * unit.y + (p[2] - point.z) * unit.z
+            }
+        };
+        for (on_sphere, delta) in [(true, 0.2), (false, 0.3)] {
+            let obstacle = if on_sphere {
+                Obstacle::Sphere {
+                    center: sphere.0,
+                    radius: sphere.1,
+                }
+            } else {
+                Obstacle::Plane { point, normal }
+            };
+            let contact = Contact::new(3, obstacle, kappa, delta)
+                .and_then(Contact::with_barrier)
+                .unwrap();
+            let d: Vec<f64> = def.iter().map(|p| contact.distance(p)).collect();
+            let inside = d.iter().filter(|&&d| d > 0.0 && d < delta).count();
+            assert!(d.iter().all(|&d| d > 0.0) && inside == 2, "{d:?}");
+            let ad = hessian(
+                |v: SVector<Dual2SVec64<9>, 9>| {
+                    let sl = v.as_slice();
+                    let mut e = Dual2SVec64::<9>::from(0.0);
+                    for i in 0..3 {
+                        let d = distance(v3(sl, i), on_sphere);
+                        if d.re < delta {
+                            e += b(d, delta);
+                        }
+                    }
+                    e
+                },
+                &x,
+            );
+            let name = if on_sphere {
+                "barrier-sphere"
+            } else {
+                "barrier-plane"
+            };
+            compare(name, closed_form(Box::new(contact), &def), ad);
+        }
+    }
+
     #[test]
     fn drag_matches_num_dual_and_finite_differences() {
         use hinge_energies::drag::Drag;
@@ -913,4 +1012,192 @@ fn smoothed_contact_penalty_is_c2_and_reduces_to_the_quadratic() {
         let err = quad.clone().with_smoothing(bad).unwrap_err().to_string();
         assert!(err.contains("smoothing"), "{err}");
     }
+}
+
+/// The barrier of the contact: zero with zero slope and curvature at its reach (C²), convex and rising
+/// without bound towards the obstacle, its derivatives the central differences of its value and slope; a
+/// vertex on or inside the obstacle is a typed error naming it; bad combinations are refused.
+#[test]
+fn contact_barrier_is_c2_convex_and_infinite_at_the_obstacle() {
+    let plane = Obstacle::Plane {
+        point: Vector3::zeros(),
+        normal: Vector3::z(),
+    };
+    let (kappa, delta) = (40.0, 0.01);
+    let c = Contact::new(2, plane, kappa, delta)
+        .and_then(Contact::with_barrier)
+        .unwrap();
+    assert!(c.is_barrier());
+    assert_eq!(c.barrier(delta), Some((0.0, 0.0, 0.0)));
+    assert_eq!(c.barrier(2.0 * delta), Some((0.0, 0.0, 0.0)));
+    let near = c.barrier(delta * (1.0 - 1e-6)).unwrap();
+    assert!(
+        near.0 > 0.0
+            && near.0 < 1e-15
+            && near.1 < 0.0
+            && near.1 > -1e-9
+            && near.2 > 0.0
+            && near.2 < 1e-3,
+        "{near:?}"
+    );
+    let mut last = 0.0;
+    for k in 1..200 {
+        let d = delta * (1.0 - k as f64 / 200.0);
+        let (v, g, h) = c.barrier(d).unwrap();
+        assert!(v > last && g < 0.0 && h > 0.0, "d = {d}: {v} {g} {h}");
+        last = v;
+        let e = 1e-6 * d;
+        let (vp, gp, _) = c.barrier(d + e).unwrap();
+        let (vm, gm, _) = c.barrier(d - e).unwrap();
+        assert!(
+            ((vp - vm) / (2.0 * e) - g).abs() <= 1e-6 * g.abs(),
+            "slope at {d}"
+        );
+        assert!(
+            ((gp - gm) / (2.0 * e) - h).abs() <= 1e-6 * h.abs(),
+            "curvature at {d}"
+        );
+    }
+    assert!(c.barrier(1e-300).unwrap().0 > 1e-2 * kappa * delta * delta * 600.0);
+    assert_eq!(c.barrier(0.0), None);
+    assert_eq!(c.barrier(-1e-3), None);
+    // A vertex on or below the plane: the error names it.
+    let mut sys = System::new(2, vec![Box::new(c.clone())]).unwrap();
+    for z in [0.0, -1e-9, -1.0] {
+        let x = [Vector3::new(0.0, 0.0, 0.003), Vector3::new(1.0, 0.0, z)];
+        let err = sys
+            .evaluate(&x, Request::VALUE, Parallelism::Sequential)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("vertex 1") && err.contains("inside the obstacle"),
+            "{err}"
+        );
+    }
+    // Refused: no reach, a smoothing, a moving obstacle (either order).
+    let motion = hinge_energies::motion::Motion::Translation(Vector3::new(0.0, 0.0, 1.0));
+    for bad in [
+        Contact::new(2, plane, kappa, 0.0).and_then(Contact::with_barrier),
+        Contact::new(2, plane, kappa, delta)
+            .and_then(|k| k.with_smoothing(0.002))
+            .and_then(Contact::with_barrier),
+        c.clone().with_smoothing(0.002),
+        c.clone().with_motion(motion.clone()),
+        Contact::new(2, plane, kappa, delta)
+            .and_then(|k| k.with_motion(motion.clone()))
+            .and_then(Contact::with_barrier),
+    ] {
+        assert!(bad.is_err());
+    }
+}
+
+/// The barrier's step bound against the distance along the path sampled densely: on random straight
+/// moves near a sphere and a plane (passing through, grazing, leaving), no point before the bound is closer
+/// than the kept share of the start's distance, and where the bound is below 1 the distance there is that
+/// share; a move through the sphere is stopped before it; the system's bound is the smallest vertex's.
+#[test]
+fn barrier_step_bound_keeps_the_gap_along_the_path() {
+    use hinge_energies::contact::BARRIER_GAP_KEPT;
+    let mut rng = SplitMix64(99);
+    let obstacles = [
+        Obstacle::Sphere {
+            center: Vector3::new(0.1, -0.2, 0.3),
+            radius: 0.5,
+        },
+        Obstacle::Plane {
+            point: Vector3::new(0.0, 0.0, -0.1),
+            normal: Vector3::new(0.3, 0.2, 1.0),
+        },
+    ];
+    let mut bounded = 0;
+    for obstacle in obstacles {
+        let c = Contact::new(1, obstacle, 10.0, 0.05)
+            .and_then(Contact::with_barrier)
+            .unwrap();
+        for _ in 0..2000 {
+            let p = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 1.5;
+            let q = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 1.5;
+            let d0 = c.distance(&p);
+            if d0 <= 0.0 {
+                continue;
+            }
+            let t = c.time_to_gap(&p, &q, BARRIER_GAP_KEPT);
+            assert!((0.0..=1.0).contains(&t));
+            let floor = BARRIER_GAP_KEPT * d0;
+            for k in 0..=400 {
+                let s = t * k as f64 / 400.0;
+                let d = c.distance(&(p + (q - p) * s));
+                assert!(
+                    d >= floor * (1.0 - 1e-9),
+                    "{obstacle:?}: {d} < {floor} at {s} of {t}"
+                );
+            }
+            if t < 1.0 {
+                bounded += 1;
+                let d = c.distance(&(p + (q - p) * t));
+                assert!((d - floor).abs() <= 1e-9 * d0, "{d} vs {floor}");
+            }
+            // The system's bound over two vertices is the smaller one's.
+            let far = Vector3::new(0.0, 0.0, 50.0);
+            let sys = System::new(
+                2,
+                vec![Box::new(
+                    Contact::new(2, obstacle, 10.0, 0.05)
+                        .and_then(Contact::with_barrier)
+                        .unwrap(),
+                )],
+            )
+            .unwrap();
+            assert_eq!(sys.max_step(&[far, p], &[far, q]), t);
+        }
+    }
+    assert!(bounded > 300, "{bounded}");
+    // Straight through the sphere's centre from 1.5 radii out on one side to the other.
+    let c = Contact::new(
+        1,
+        Obstacle::Sphere {
+            center: Vector3::zeros(),
+            radius: 1.0,
+        },
+        10.0,
+        0.05,
+    )
+    .and_then(Contact::with_barrier)
+    .unwrap();
+    let t = c.time_to_gap(
+        &Vector3::new(3.0, 0.0, 0.0),
+        &Vector3::new(-3.0, 0.0, 0.0),
+        0.1,
+    );
+    assert!((t - 0.3).abs() < 1e-15, "{t}");
+    // Grazing past (closest 1.5 > 1 + 0.1 · d0) and moving away: unbounded.
+    let graze = c.time_to_gap(
+        &Vector3::new(3.0, 1.5, 0.0),
+        &Vector3::new(-3.0, 1.5, 0.0),
+        0.1,
+    );
+    let away = c.time_to_gap(
+        &Vector3::new(1.2, 0.0, 0.0),
+        &Vector3::new(9.0, 0.0, 0.0),
+        0.1,
+    );
+    assert_eq!((graze, away), (1.0, 1.0));
+    // The penalty bounds nothing.
+    let penalty = Contact::new(
+        1,
+        Obstacle::Sphere {
+            center: Vector3::zeros(),
+            radius: 1.0,
+        },
+        10.0,
+        0.05,
+    )
+    .unwrap();
+    assert_eq!(
+        penalty.max_step(
+            &[Vector3::new(3.0, 0.0, 0.0)],
+            &[Vector3::new(-3.0, 0.0, 0.0)]
+        ),
+        1.0
+    );
 }

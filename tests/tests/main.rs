@@ -6,6 +6,7 @@
 mod adjoint;
 mod anisotropy;
 mod assembly;
+mod barrier;
 mod corotational;
 mod energies;
 mod hinge_kernels;

@@ -246,18 +246,20 @@ class System:
         self._s.add_drag(float(density), float(rate))
         return self
 
-    def add_sphere(self, center, radius, stiffness, margin=0.0, smoothing=0.0):
+    def add_sphere(self, center, radius, stiffness, margin=0.0, smoothing=0.0, barrier=False):
         """Penalty contact with a sphere; ``smoothing`` > 0 (a length) makes the penalty C² over the first
-        ``smoothing`` of penetration into the margin (0: the quadratic penalty)."""
+        ``smoothing`` of penetration into the margin (0: the quadratic penalty). ``barrier=True``: a
+        logarithmic barrier reaching ``margin`` (> 0) from the obstacle instead, infinite on it; the solvers
+        then never let a vertex reach the obstacle, and a vertex on or inside it raises ``ValueError``."""
         self._s.add_sphere([float(c) for c in center], float(radius), float(stiffness), float(margin),
-                           float(smoothing))
+                           float(smoothing), bool(barrier))
         return self
 
-    def add_plane(self, point, normal, stiffness, margin=0.0, smoothing=0.0):
-        """Penalty contact with a plane (vertices pushed to the side ``normal`` points to); ``smoothing`` as
-        for ``add_sphere``."""
+    def add_plane(self, point, normal, stiffness, margin=0.0, smoothing=0.0, barrier=False):
+        """Penalty contact with a plane (vertices pushed to the side ``normal`` points to); ``smoothing`` and
+        ``barrier`` as for ``add_sphere``."""
         self._s.add_plane([float(c) for c in point], [float(c) for c in normal], float(stiffness),
-                          float(margin), float(smoothing))
+                          float(margin), float(smoothing), bool(barrier))
         return self
 
     def pin(self, vertices):
