@@ -392,6 +392,7 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
+    check_barrier_start(scene, &mut system, &x, names)?;
     let (parameter, stages) = membrane_stages(scene, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -638,6 +639,33 @@ pub fn simulate(
     simulate_until(scene, rest, out, None, None, progress)
 }
 
+/// A barrier contact is infinite on and inside its obstacle, so no solve can start with a vertex there: said
+/// before the first step (naming the vertex as the mesh file counts it), not as a failed frame.
+fn check_barrier_start(
+    scene: &Scene,
+    system: &mut System,
+    x: &[Vector3<f64>],
+    names: Option<&FileNumbering>,
+) -> Result<(), String> {
+    if !scene.obstacles.iter().any(|o| o.model == "barrier") {
+        return Ok(());
+    }
+    system
+        .evaluate(
+            x,
+            hinge_core::bending::Request::VALUE,
+            hinge_core::bending::Parallelism::Rayon,
+        )
+        .map(|_| ())
+        .map_err(|source| {
+            let e = SolverError::Eval {
+                source,
+                stats: Box::default(),
+            };
+            format!("initial state: {}", solver_message(&e, names))
+        })
+}
+
 /// A solver error's message; with `names` (a mesh file's numbering), an evaluation error names its vertices
 /// and faces as the file counts them ([`hinge_core::EvalError::describe`]).
 pub fn solver_message(e: &SolverError, names: Option<&FileNumbering>) -> String {
@@ -725,6 +753,7 @@ pub fn simulate_until(
     let mut active = active_at(0.0);
     let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
+    check_barrier_start(scene, &mut system, &x, names)?;
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,
