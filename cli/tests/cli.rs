@@ -2908,3 +2908,38 @@ fn an_stl_mesh_runs_as_its_welded_obj() {
     assert_eq!(stl.positions(), obj.positions());
     assert_eq!(stl.triangles(), obj.triangles());
 }
+
+/// A load so large that the forces' sum of squares overflows f64: one line naming a finite gradient norm
+/// (it said "gradient norm inf").
+#[test]
+fn an_absurd_load_fails_with_a_finite_gradient_norm() {
+    let dir = tmp("absurd-load");
+    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
+    assert!(shown.contains("gravity = [0.0, 0.0, -9.81]"));
+    let file = dir.join("heavy.toml");
+    std::fs::write(
+        &file,
+        shown.replace(
+            "gravity = [0.0, 0.0, -9.81]",
+            "gravity = [0.0, 0.0, -1e160]",
+        ),
+    )
+    .unwrap();
+    let err = one_line_failure(&[
+        "run",
+        file.to_str().unwrap(),
+        "--resolution",
+        "6",
+        "--frames",
+        "1",
+        "--no-frames",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert!(
+        err.contains("frame 1") && err.contains("gradient norm 1."),
+        "{err}"
+    );
+    assert!(!err.contains("inf"), "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -26,7 +26,7 @@ use hinge_core::nalgebra::Vector3;
 use hinge_energies::pins::Pins;
 
 use crate::linear::{FaerLlt, LinearError, LinearSolver};
-use crate::newton::{Newton, Reduced, SolverError};
+use crate::newton::{Newton, Reduced, SolverError, norm};
 
 /// Why a sensitivity or a fit could not be computed.
 #[derive(Debug, thiserror::Error)]
@@ -1003,10 +1003,6 @@ impl<'a> Fit<'a> {
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-fn norm(a: &[f64]) -> f64 {
-    dot(a, a).sqrt()
 }
 
 /// The L-BFGS direction `−H̃ g` from the pairs `(s_k, y_k)` (oldest first), scaled by `sᵀy / yᵀy` of the

@@ -926,8 +926,23 @@ struct Work {
     d: Vec<f64>,
 }
 
-fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|a| a * a).sum::<f64>().sqrt()
+/// The Euclidean norm; when the sum of squares overflows (entries beyond ~1e154, say a gradient under an
+/// absurd load) it is taken again scaled by the largest entry, so a finite vector has a finite norm (the
+/// common case is the one plain pass, bitwise as before).
+pub(crate) fn norm(v: &[f64]) -> f64 {
+    let squares = v.iter().map(|a| a * a).sum::<f64>();
+    if squares.is_finite() {
+        return squares.sqrt();
+    }
+    let largest = v.iter().fold(0.0_f64, |m, a| m.max(a.abs()));
+    if !(largest.is_finite() && largest > 0.0) {
+        return squares.sqrt();
+    }
+    largest
+        * v.iter()
+            .map(|a| (a / largest) * (a / largest))
+            .sum::<f64>()
+            .sqrt()
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -1253,5 +1268,22 @@ impl ImplicitEuler {
             }
         }
         Ok(fs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::norm;
+
+    #[test]
+    fn norms_of_finite_vectors_are_finite() {
+        assert_eq!(norm(&[3.0, 4.0]), 5.0);
+        assert_eq!(norm(&[]), 0.0);
+        let big = norm(&[3e200, -4e200, 0.0]);
+        assert!((big / 5e200 - 1.0).abs() < 4.0 * f64::EPSILON, "{big}");
+        assert_eq!(norm(&[f64::MAX, f64::MAX]), f64::INFINITY);
+        assert_eq!(norm(&[1e300, f64::INFINITY]), f64::INFINITY);
+        assert!(norm(&[1e300, f64::NAN]).is_nan());
+        assert!(norm(&[1.0, f64::NAN]).is_nan());
     }
 }
