@@ -491,13 +491,6 @@ fn scenes_are_listed_shown_and_validated() {
             "obstacles[0].model",
         ),
         (
-            text.replace(
-                "margin = 0.005",
-                "margin = 0.005\nmodel = \"barrier\"\nmotion = { kind = \"translation\", velocity = [0.0, 0.0, 0.1] }",
-            ),
-            "obstacles[0].motion",
-        ),
-        (
             text.replace("margin = 0.005", "margin = 0.005\nmodel = \"barrier\"")
                 .replace("origin = [-0.5, -0.5, 0.3]", "origin = [-0.5, -0.5, 0.1]"),
             "initial state: evaluation failed: contact, vertex",

@@ -162,6 +162,13 @@ pub trait Energy: Send + Sync {
         1.0
     }
 
+    /// Moves vertices of `x` (positions at time `from_time`) the way a moving part of this energy moved
+    /// them by the time it is placed at now ([`Energy::set_time`]): a barrier's moving obstacle carries the
+    /// vertices within its reach, so that a time step can start outside it. Default: nothing.
+    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+        let _ = (from_time, x);
+    }
+
     /// Binds to the system's pattern, which holds at least [`Energy::couplings`]: precompute slots here.
     ///
     /// # Errors
@@ -756,6 +763,16 @@ impl System {
             .iter()
             .map(|t| t.max_step(from, to))
             .fold(1.0, f64::min)
+    }
+
+    /// [`Energy::carry`] of every term in turn (nothing for a slice of the wrong length).
+    pub fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+        if x.len() != self.n_vertices {
+            return;
+        }
+        for t in &self.terms {
+            t.carry(from_time, x);
+        }
     }
 
     /// Starts a time step for every term (see [`Energy::begin_step`]).

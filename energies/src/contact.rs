@@ -32,7 +32,11 @@
 //! vertex cannot pass through a sphere within one step): Newton's line search starts there, and implicit
 //! Euler starts a step from `x̂` or, where the move from the last state to `x̂` exceeds the bound, that
 //! fraction of the way. Every state Newton visits is then outside the obstacle, whatever the speeds and the
-//! time step, and a fast vertex does not start a step beyond a sphere it would have hit.
+//! time step, and a fast vertex does not start a step beyond a sphere it would have hit. A moving
+//! obstacle carries the vertices within its reach ([`Energy::carry`]: a sphere's vertices by its centre's
+//! displacement, a plane's along its new normal to their old distance), so that a step starts outside it
+//! where it has moved to; a vertex outside the reach that the obstacle overtakes within one step makes the
+//! step fail (and the steppers retry it in substeps, over which the obstacle moves less).
 //!
 //! **Moving obstacles.** [`Contact::with_motion`] gives the obstacle a rigid [`Motion`]: at time `t` a
 //! sphere's centre is at `motion.target(centre, t)`, a plane passes through `motion.target(point, t)` with
@@ -164,16 +168,13 @@ impl Contact {
     /// barrier's reach, which must be positive, and a vertex on or inside the obstacle is an error.
     ///
     /// # Errors
-    /// [`EvalError::Element`] for a zero margin, a smoothing (the barrier is C² by itself) or a moving
-    /// obstacle ([`Contact::with_motion`]: the barrier needs every step to start outside the obstacle, which
-    /// an obstacle moving into a resting vertex breaks; not supported yet).
+    /// [`EvalError::Element`] for a zero margin or a smoothing (the barrier is C² by itself).
     pub fn with_barrier(mut self) -> Result<Self, EvalError> {
-        if !(self.margin > 0.0) || self.smoothing != 0.0 || self.motion.is_some() {
+        if !(self.margin > 0.0) || self.smoothing != 0.0 {
             return Err(EvalError::Element {
                 element: "contact".into(),
                 message: format!(
-                    "a barrier needs a positive margin (its reach; got {}), no smoothing (got {}) and a \
-                     fixed obstacle (moving ones are not supported with the barrier yet)",
+                    "a barrier needs a positive margin (its reach; got {}) and no smoothing (got {})",
                     self.margin, self.smoothing
                 ),
             });
@@ -237,19 +238,12 @@ impl Contact {
     /// [`Contact::new`]); [`Energy::set_time`] places it.
     ///
     /// # Errors
-    /// [`EvalError::Element`] with [`Motion::check`]'s reason, or for a barrier ([`Contact::with_barrier`]).
+    /// [`EvalError::Element`] with [`Motion::check`]'s reason.
     pub fn with_motion(mut self, motion: Motion) -> Result<Self, EvalError> {
         motion.check().map_err(|why| EvalError::Element {
             element: "contact".into(),
             message: format!("obstacle motion: {why}"),
         })?;
-        if self.barrier {
-            return Err(EvalError::Element {
-                element: "contact".into(),
-                message: "obstacle motion: moving obstacles are not supported with the barrier yet"
-                    .into(),
-            });
-        }
         self.motion = Some((self.obstacle, motion));
         Ok(self)
     }
@@ -335,6 +329,44 @@ impl Energy for Contact {
     }
 
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+
+    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+        let Some((rest, motion)) = &self.motion.as_ref().filter(|_| self.barrier) else {
+            return;
+        };
+        if !from_time.is_finite() {
+            return;
+        }
+        let before = Self::moved(rest, motion, from_time);
+        let reach = self.margin;
+        for p in x.iter_mut() {
+            // Within reach of the obstacle where it was: moved so as to keep that distance to it now (a
+            // sphere's centre's displacement; for a plane, along its new normal).
+            match (before, self.obstacle) {
+                (Obstacle::Sphere { center: c0, radius }, Obstacle::Sphere { center: c1, .. })
+                    if (*p - c0).norm() - radius < reach =>
+                {
+                    *p += c1 - c0;
+                }
+                (
+                    Obstacle::Plane {
+                        point: p0,
+                        normal: n0,
+                    },
+                    Obstacle::Plane {
+                        point: p1,
+                        normal: n1,
+                    },
+                ) => {
+                    let d0 = n0.dot(&(*p - p0));
+                    if d0 < reach {
+                        *p += n1 * (d0 - n1.dot(&(*p - p1)));
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
 
     fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
         if !self.barrier {

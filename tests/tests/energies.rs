@@ -1074,7 +1074,7 @@ fn contact_barrier_is_c2_convex_and_infinite_at_the_obstacle() {
             "{err}"
         );
     }
-    // Refused: no reach, a smoothing, a moving obstacle (either order).
+    // Refused: no reach, a smoothing (either order). A moving obstacle is fine (either order).
     let motion = hinge_energies::motion::Motion::Translation(Vector3::new(0.0, 0.0, 1.0));
     for bad in [
         Contact::new(2, plane, kappa, 0.0).and_then(Contact::with_barrier),
@@ -1082,13 +1082,16 @@ fn contact_barrier_is_c2_convex_and_infinite_at_the_obstacle() {
             .and_then(|k| k.with_smoothing(0.002))
             .and_then(Contact::with_barrier),
         c.clone().with_smoothing(0.002),
-        c.clone().with_motion(motion.clone()),
-        Contact::new(2, plane, kappa, delta)
-            .and_then(|k| k.with_motion(motion.clone()))
-            .and_then(Contact::with_barrier),
     ] {
         assert!(bad.is_err());
     }
+    assert!(c.clone().with_motion(motion.clone()).is_ok());
+    assert!(
+        Contact::new(2, plane, kappa, delta)
+            .and_then(|k| k.with_motion(motion.clone()))
+            .and_then(Contact::with_barrier)
+            .is_ok()
+    );
 }
 
 /// The barrier's step bound against the distance along the path sampled densely: on random straight
@@ -1200,4 +1203,81 @@ fn barrier_step_bound_keeps_the_gap_along_the_path() {
         ),
         1.0
     );
+}
+
+/// A moving barrier obstacle carries the vertices within its reach at the earlier time to the same distance
+/// from it now (a plane turning and rising, a sphere moving), and leaves the others where they are; a
+/// penalty contact or a fixed barrier carries nothing.
+#[test]
+fn moving_barrier_obstacles_carry_vertices_within_reach_at_their_distance() {
+    use hinge_energies::motion::Motion;
+    let plane = Obstacle::Plane {
+        point: Vector3::new(0.1, 0.0, 0.0),
+        normal: Vector3::new(0.2, 0.1, 1.0),
+    };
+    let sphere = Obstacle::Sphere {
+        center: Vector3::new(0.0, 0.3, -0.5),
+        radius: 0.5,
+    };
+    let turn = Motion::Rotation {
+        center: Vector3::new(0.3, -0.2, 0.0),
+        axis: Vector3::new(1.0, 2.0, 0.5).normalize(),
+        angular_velocity: 0.7,
+    };
+    let slide = Motion::Translation(Vector3::new(0.4, -0.1, 0.3));
+    let (t0, t1, reach) = (0.2, 0.25, 0.01);
+    let mut rng = SplitMix64(41);
+    for (obstacle, motion) in [(plane, turn), (sphere, slide)] {
+        let mut c = Contact::new(200, obstacle, 10.0, reach)
+            .and_then(Contact::with_barrier)
+            .and_then(|k| k.with_motion(motion.clone()))
+            .unwrap();
+        let mut before = c.clone();
+        before.set_time(t0).unwrap();
+        c.set_time(t1).unwrap();
+        // Points at distances 0 … 2 reaches from the obstacle at t0.
+        let x: Vec<Vector3<f64>> = (0..200)
+            .map(|k| {
+                let p = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 0.6;
+                let want = 2.0 * reach * k as f64 / 200.0 + 1e-6;
+                let (u, d) = match before.obstacle() {
+                    Obstacle::Plane { normal, .. } => (normal, before.distance(&p)),
+                    Obstacle::Sphere { center, .. } => {
+                        ((p - center).normalize(), before.distance(&p))
+                    }
+                };
+                p + u * (want - d)
+            })
+            .collect();
+        let mut moved = x.clone();
+        c.carry(t0, &mut moved);
+        let mut carried = 0;
+        for (p, q) in x.iter().zip(&moved) {
+            let d0 = before.distance(p);
+            if d0 < reach {
+                carried += 1;
+                assert!(
+                    (c.distance(q) - d0).abs() <= 1e-12,
+                    "{} vs {d0}",
+                    c.distance(q)
+                );
+            } else {
+                assert_eq!(p, q);
+            }
+        }
+        assert!(carried > 80 && carried < 120, "{carried}");
+        // Not a barrier, or not moving: nothing moves.
+        for other in [
+            Contact::new(200, obstacle, 10.0, reach)
+                .and_then(|k| k.with_motion(motion.clone()))
+                .unwrap(),
+            Contact::new(200, obstacle, 10.0, reach)
+                .and_then(Contact::with_barrier)
+                .unwrap(),
+        ] {
+            let mut same = x.clone();
+            other.carry(t0, &mut same);
+            assert_eq!(same, x);
+        }
+    }
 }
