@@ -160,22 +160,29 @@ fn sheet_on_a_rising_plane(max_dt: f64, speed: f64) -> (TriMesh, System, Times, 
     (rest, sys, ended, evaluated)
 }
 
+/// Implicit Euler with step `dt` on `sys`, lumped masses of density 0.2 on `rest`, nothing pinned, the
+/// default solver and Newton parameters.
+fn implicit_euler(sys: &System, rest: &TriMesh, dt: f64) -> ImplicitEuler {
+    let pins = Pins::new(rest.n_vertices(), Vec::new()).unwrap();
+    let masses = lumped_masses(rest, 0.2);
+    ImplicitEuler::new(
+        sys,
+        dt,
+        masses,
+        pins,
+        default_solver(),
+        NewtonParams::default(),
+    )
+    .unwrap()
+}
+
 #[test]
 fn implicit_euler_places_obstacles_at_each_substep_end_and_back_on_failure() {
     let dt = 0.04;
     // The clock rejects steps above dt/3: each frame is dt/4, dt/4, (dt/2 rejected), dt/4, dt/4.
     let (rest, mut sys, ended, evaluated) = sheet_on_a_rising_plane(dt / 3.0, 0.5);
     let n = rest.n_vertices();
-    let masses = lumped_masses(&rest, 0.2);
-    let mut stepper = ImplicitEuler::new(
-        &sys,
-        dt,
-        masses,
-        Pins::new(n, Vec::new()).unwrap(),
-        default_solver(),
-        NewtonParams::default(),
-    )
-    .unwrap();
+    let mut stepper = implicit_euler(&sys, &rest, dt);
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let policy = SubstepPolicy { max_halvings: 4 };
     for frame in 0..2 {
@@ -196,15 +203,7 @@ fn implicit_euler_places_obstacles_at_each_substep_end_and_back_on_failure() {
     // A frame that fails at every substep (the floor is dt/16 here, above the clock's limit) leaves x, v,
     // the stepper's time and the obstacles at the frame's start.
     let (rest2, mut sys2, _, evaluated2) = sheet_on_a_rising_plane(dt / 100.0, 0.5);
-    let mut s2 = ImplicitEuler::new(
-        &sys2,
-        dt,
-        lumped_masses(&rest2, 0.2),
-        Pins::new(n, Vec::new()).unwrap(),
-        default_solver(),
-        NewtonParams::default(),
-    )
-    .unwrap();
+    let mut s2 = implicit_euler(&sys2, &rest2, dt);
     s2.set_time(&mut sys2, 0.2).unwrap();
     let (mut x2, mut v2) = (rest2.positions().to_vec(), vec![Vector3::zeros(); n]);
     let (x0, v0) = (x2.clone(), v2.clone());
@@ -272,15 +271,7 @@ fn a_rising_plane_lifts_the_sheet() {
     let dt = 0.02;
     let (rest, mut sys, _, _) = sheet_on_a_rising_plane(1.0, 0.5);
     let n = rest.n_vertices();
-    let mut stepper = ImplicitEuler::new(
-        &sys,
-        dt,
-        lumped_masses(&rest, 0.2),
-        Pins::new(n, Vec::new()).unwrap(),
-        default_solver(),
-        NewtonParams::default(),
-    )
-    .unwrap();
+    let mut stepper = implicit_euler(&sys, &rest, dt);
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let mut heights = Vec::new();
     for _ in 0..30 {
@@ -344,15 +335,7 @@ fn moving_barrier_obstacles_carry_the_sheet_without_a_vertex_reaching_them() {
             Box::new(contact.clone()),
         ];
         let mut sys = System::new(n, terms).unwrap();
-        let mut stepper = ImplicitEuler::new(
-            &sys,
-            dt,
-            lumped_masses(&rest, 0.2),
-            Pins::new(n, Vec::new()).unwrap(),
-            default_solver(),
-            NewtonParams::default(),
-        )
-        .unwrap();
+        let mut stepper = implicit_euler(&sys, &rest, dt);
         let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
         let mut probe = contact.clone();
         let mut closest = f64::INFINITY;
