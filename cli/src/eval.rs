@@ -86,8 +86,10 @@ pub const ENERGIES: [EnergyEntry; 13] = [
             ("radius", 0.5),
             ("stiffness", 1000.0),
             ("margin", 0.0),
+            ("smoothing", 0.0),
+            ("barrier", 0.0),
         ],
-        "one-sided quadratic penalty outside a sphere",
+        "one-sided penalty outside a sphere (quadratic; C2 with smoothing > 0); barrier=1: log barrier of reach margin",
     ),
     (
         "contact-plane",
@@ -100,8 +102,10 @@ pub const ENERGIES: [EnergyEntry; 13] = [
             ("nz", 1.0),
             ("stiffness", 1000.0),
             ("margin", 0.0),
+            ("smoothing", 0.0),
+            ("barrier", 0.0),
         ],
-        "one-sided quadratic penalty above a plane",
+        "one-sided penalty above a plane (quadratic; C2 with smoothing > 0); barrier=1: log barrier of reach margin",
     ),
 ];
 
@@ -253,33 +257,50 @@ fn build(
             )
             .map_err(model_err)?,
         ),
-        "contact-sphere" => Box::new(
-            Contact::new(
-                n,
-                Obstacle::Sphere {
-                    center: Vector3::new(g("cx"), g("cy"), g("cz")),
-                    radius: g("radius"),
-                },
-                g("stiffness"),
-                g("margin"),
-            )
-            .map_err(model_err)?,
-        ),
-        "contact-plane" => Box::new(
-            Contact::new(
-                n,
-                Obstacle::Plane {
-                    point: Vector3::new(g("px"), g("py"), g("pz")),
-                    normal: Vector3::new(g("nx"), g("ny"), g("nz")),
-                },
-                g("stiffness"),
-                g("margin"),
-            )
-            .map_err(model_err)?,
-        ),
+        "contact-sphere" => contact(
+            n,
+            Obstacle::Sphere {
+                center: Vector3::new(g("cx"), g("cy"), g("cz")),
+                radius: g("radius"),
+            },
+            p,
+        )
+        .map_err(model_err)?,
+        "contact-plane" => contact(
+            n,
+            Obstacle::Plane {
+                point: Vector3::new(g("px"), g("py"), g("pz")),
+                normal: Vector3::new(g("nx"), g("ny"), g("nz")),
+            },
+            p,
+        )
+        .map_err(model_err)?,
         other => return Err(format!("unknown energy `{other}`")),
     };
     System::new(n, vec![term]).map_err(|e| e.to_string())
+}
+
+/// A contact term from `hinge eval`'s parameters: `stiffness`, `margin`, `smoothing` and `barrier` (0: the
+/// penalty, 1: the barrier; anything else is an error).
+fn contact(
+    n: usize,
+    obstacle: Obstacle,
+    p: &std::collections::BTreeMap<&'static str, f64>,
+) -> Result<Box<dyn Energy>, hinge_core::EvalError> {
+    let g = |k: &str| p.get(k).copied().unwrap_or(0.0);
+    let term =
+        Contact::new(n, obstacle, g("stiffness"), g("margin"))?.with_smoothing(g("smoothing"))?;
+    let barrier = g("barrier");
+    Ok(Box::new(if barrier == 1.0 {
+        term.with_barrier()?
+    } else if barrier == 0.0 {
+        term
+    } else {
+        return Err(hinge_core::EvalError::Element {
+            element: "contact".into(),
+            message: format!("barrier must be 0 (penalty) or 1 (barrier), got {barrier}"),
+        });
+    }))
 }
 
 /// Runs `hinge eval`.

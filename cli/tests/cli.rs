@@ -396,6 +396,151 @@ fn every_listed_energy_evaluates() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `hinge eval` with the contact models: the energy and gradient files of the barrier and of the smoothed
+/// penalty against their formulas evaluated here per vertex (a tilted sheet over a sphere, several vertices
+/// within the reach at different distances), and the models' errors as one line.
+#[test]
+fn eval_contact_models_match_their_formulas() {
+    let dir = tmp("eval-contact");
+    let rest = dir.join("rest.obj");
+    let mesh =
+        hinge_core::grid::grid(6, 5, 1.0, 1.0, hinge_core::grid::Diagonal::Alternating).unwrap();
+    // Tilted so that no two vertices share a distance; the sphere touches nothing.
+    let x: Vec<_> = mesh
+        .positions()
+        .iter()
+        .map(|p| hinge_core::nalgebra::Vector3::new(p.x, p.y, 0.03 * p.x + 0.011 * p.y))
+        .collect();
+    hinge_core::obj::write_obj(&rest, &x, mesh.triangles()).unwrap();
+    let (c, r, kappa, delta, eps) = (
+        hinge_core::nalgebra::Vector3::new(0.45, 0.55, -1.003),
+        1.0,
+        70.0,
+        0.06,
+        0.02,
+    );
+    // Per vertex: φ(s) and φ′(s) of the penetration s = δ − d (smoothed), or b(d), b′(d) (barrier).
+    let smoothed = |s: f64| {
+        if s <= 0.0 {
+            (0.0, 0.0)
+        } else if s < eps {
+            (kappa * s.powi(3) / (6.0 * eps), kappa * s * s / (2.0 * eps))
+        } else {
+            (
+                0.5 * kappa * (s * s - eps * s + eps * eps / 3.0),
+                kappa * (s - 0.5 * eps),
+            )
+        }
+    };
+    let barrier = |d: f64| {
+        if d >= delta {
+            (0.0, 0.0)
+        } else {
+            let l = (d / delta).ln();
+            (
+                -kappa * (d - delta).powi(2) * l,
+                -kappa * (2.0 * (d - delta) * l + (d - delta).powi(2) / d),
+            )
+        }
+    };
+    let within = x.iter().filter(|p| (*p - c).norm() - r < delta).count();
+    assert!(within >= 4, "{within} vertices within the reach");
+    let args = |out: &Path, extra: &[&str]| {
+        let mut a: Vec<String> = [
+            "eval",
+            "--rest",
+            rest.to_str().unwrap(),
+            "--energy",
+            "contact-sphere",
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        for p in [
+            format!("cx={}", c.x),
+            format!("cy={}", c.y),
+            format!("cz={}", c.z),
+            format!("radius={r}"),
+            format!("stiffness={kappa}"),
+            format!("margin={delta}"),
+        ] {
+            a.push("--param".into());
+            a.push(p);
+        }
+        for e in extra {
+            a.push("--param".into());
+            a.push(e.to_string());
+        }
+        a
+    };
+    for (model, extra) in [("barrier", ["barrier=1"]), ("smoothed", ["smoothing=0.02"])] {
+        let out = dir.join(model);
+        let a = args(&out, &extra);
+        let o = hinge(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let grad: Vec<f64> = std::fs::read_to_string(out.join("gradient.txt"))
+            .unwrap()
+            .lines()
+            .map(|l| l.parse().unwrap())
+            .collect();
+        let mut energy = 0.0;
+        for (i, p) in x.iter().enumerate() {
+            let u = (p - c) / (p - c).norm();
+            let d = (p - c).norm() - r;
+            // ∇E = b′ ∇d for the barrier, −φ′ ∇d for the penalty of s = δ − d.
+            let (e, slope) = if model == "barrier" {
+                barrier(d)
+            } else {
+                let (e, ds) = smoothed(delta - d);
+                (e, -ds)
+            };
+            energy += e;
+            for k in 0..3 {
+                let want = slope * u[k];
+                assert!(
+                    (grad[3 * i + k] - want).abs() <= 1e-12 * want.abs().max(1e-3),
+                    "{model}: vertex {i}, component {k}: {} vs {want}",
+                    grad[3 * i + k]
+                );
+            }
+        }
+        assert!(energy > 0.0);
+        let got = json["energy"].as_f64().unwrap();
+        assert!(
+            (got - energy).abs() <= 1e-13 * energy,
+            "{model}: {got} vs {energy}"
+        );
+    }
+    // Errors: a model that does not exist, a barrier without reach, a vertex inside the sphere.
+    let out = dir.join("bad");
+    for (extra, expected) in [
+        (
+            vec!["barrier=2"],
+            "barrier must be 0 (penalty) or 1 (barrier), got 2",
+        ),
+        (
+            vec!["barrier=1", "margin=0"],
+            "a barrier needs a positive margin",
+        ),
+        (
+            vec!["barrier=1", "smoothing=0.01"],
+            "and no smoothing (got 0.01)",
+        ),
+        (vec!["barrier=1", "cz=-0.95"], "vertex "),
+    ] {
+        let a = args(&out, &extra);
+        let line = one_line_failure(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(
+            line.contains(expected) && line.contains("contact"),
+            "{extra:?}: {line}"
+        );
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn scenes_are_listed_shown_and_validated() {
     let dir = tmp("scenes");
