@@ -36,7 +36,8 @@
 //! obstacle carries the vertices within its reach ([`Energy::carry`]: a sphere's vertices by its centre's
 //! displacement, a plane's along its new normal to their old distance), so that a step starts outside it
 //! where it has moved to; a vertex outside the reach that the obstacle overtakes within one step makes the
-//! step fail (and the steppers retry it in substeps, over which the obstacle moves less).
+//! step fail (and implicit Euler retries it in substeps, over which the obstacle moves less). Symplectic
+//! Euler does not carry: its substeps must be short enough for the barrier's force to act first.
 //!
 //! **Moving obstacles.** [`Contact::with_motion`] gives the obstacle a rigid [`Motion`]: at time `t` a
 //! sphere's centre is at `motion.target(centre, t)`, a plane passes through `motion.target(point, t)` with
