@@ -655,6 +655,26 @@ pub struct SystemEvaluation {
     pub hessian: Vec<f64>,
 }
 
+/// Labels for terms named `names` (in order), as parameter names use them: a name, and for the k-th term of
+/// a name that an earlier term has (k ≥ 2) the name followed by `#k` — two custom bending terms are `custom`
+/// and `custom#2`, so that each one's parameters can be named (`custom#2.k`).
+pub fn term_labels<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<String> {
+    let mut seen: Vec<(&str, usize)> = Vec::new();
+    names
+        .into_iter()
+        .map(|name| match seen.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, count)) => {
+                *count += 1;
+                format!("{name}#{count}")
+            }
+            None => {
+                seen.push((name, 1));
+                name.to_string()
+            }
+        })
+        .collect()
+}
+
 /// Several energies over one mesh, assembled into one gradient and one sparse Hessian.
 pub struct System {
     n_vertices: usize,
@@ -925,26 +945,33 @@ impl System {
         })
     }
 
-    /// Every term's differentiable parameters, named `TERM.NAME` (the term's [`Energy::name`], a dot, the
-    /// term's parameter name), in term order.
+    /// The terms' labels in parameter names, in term order ([`term_labels`] of their [`Energy::name`]s).
+    pub fn term_labels(&self) -> Vec<String> {
+        term_labels(self.terms.iter().map(|t| t.name()))
+    }
+
+    /// Every term's differentiable parameters, named `TERM.NAME` (the term's label from
+    /// [`System::term_labels`] — its [`Energy::name`], with `#k` for a repeated name —, a dot, the term's
+    /// parameter name), in term order.
     pub fn parameters(&self) -> Vec<Parameter> {
         self.terms
             .iter()
-            .flat_map(|t| {
+            .zip(self.term_labels())
+            .flat_map(|(t, label)| {
                 t.parameters().into_iter().map(move |p| Parameter {
-                    name: format!("{}.{}", t.name(), p.name),
+                    name: format!("{label}.{}", p.name),
                     len: p.len,
                 })
             })
             .collect()
     }
 
-    /// The term and the term's own parameter name of `TERM.NAME` (the first term of that name that has the
-    /// parameter).
+    /// The term and the term's own parameter name of `TERM.NAME` (`TERM` a label of
+    /// [`System::term_labels`]).
     fn find_parameter(&self, name: &str) -> Result<(usize, String), EvalError> {
-        for (i, t) in self.terms.iter().enumerate() {
+        for (i, (t, label)) in self.terms.iter().zip(self.term_labels()).enumerate() {
             if let Some(rest) = name
-                .strip_prefix(t.name())
+                .strip_prefix(label.as_str())
                 .and_then(|r| r.strip_prefix('.'))
                 && t.parameters().iter().any(|p| p.name == rest)
             {

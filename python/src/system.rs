@@ -429,9 +429,11 @@ impl PySystem {
         self.rest.n_vertices()
     }
 
-    /// The terms' names, in order.
+    /// The terms' names, in order; the k-th term of a name an earlier term has is `NAME#k`, as in parameter
+    /// names (`custom#2.k`).
     fn term_names(&self) -> Vec<String> {
-        self.terms
+        let names: Vec<String> = self
+            .terms
             .iter()
             .map(|t| match t {
                 Term::Bending { name, .. } => name.clone(),
@@ -445,7 +447,8 @@ impl PySystem {
                 Term::Sphere { .. } => "contact-sphere".into(),
                 Term::Plane { .. } => "contact-plane".into(),
             })
-            .collect()
+            .collect();
+        hinge_core::energy::term_labels(names.iter().map(String::as_str))
     }
 
     /// The differentiable parameters of the system's terms as `[(name, length)]`, named `TERM.NAME`

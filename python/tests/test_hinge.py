@@ -603,6 +603,22 @@ def test_parameters_are_listed_read_and_set():
         s.set_parameter("gravity.g", [1.0, 2.0])
 
 
+def test_repeated_terms_are_numbered_in_parameter_names():
+    V, F = sheet(5, 4, 31)
+    X = V + np.stack([0 * V[:, 0], 0 * V[:, 0], 0.2 * np.sin(2 * V[:, 0])], axis=1)
+    psi = "c * a * (theta - theta_bar).powi(2)"
+    s = hinge.System(V, F).add_bending(psi=psi, c=1.0).add_bending(psi=psi, c=3.0)
+    assert s.terms == ["custom", "custom#2"]
+    names = dict(s.parameters())
+    assert "custom.c" in names and "custom#2.c" in names
+    s.set_parameter("custom#2.c", 5.0)
+    assert s.parameter("custom.c")[0] == 1.0 and s.parameter("custom#2.c")[0] == 5.0
+    one = lambda c: hinge.System(V, F).add_bending(psi=psi, c=c).evaluate(X)[0]
+    assert s.evaluate(X)[0] == pytest.approx(one(1.0) + one(5.0), rel=1e-13)
+    with pytest.raises(ValueError, match="unknown"):
+        s.parameter("custom#3.c")
+
+
 def test_adjoint_gradient_matches_finite_differences_of_resolved_equilibria():
     V, F, s = cantilever()
     bending = [n for n, _ in s.parameters() if n.endswith(".k")][0]

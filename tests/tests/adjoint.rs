@@ -306,6 +306,102 @@ fn eg(system: &mut System, x: &[Vector3<f64>]) -> (f64, Vec<f64>) {
     (r.energy, r.gradient)
 }
 
+/// Terms of the same name get labels `NAME#k` in parameter names, so the second of two custom bending terms
+/// (or of two obstacles) can be read, set and differentiated: against one-term systems of each.
+#[test]
+fn repeated_term_names_are_numbered_in_parameter_names() {
+    let (rest, x) = sheet();
+    let n = rest.n_vertices();
+    let bend = |c: f64| -> Box<dyn Energy> {
+        let psi = RuntimePsi::new(
+            "c * a * (theta - theta_bar).powi(2)",
+            [("c", ParamValue::Scalar(c))],
+        )
+        .unwrap();
+        Box::new(HingeTerm::new(
+            "custom",
+            BendingModel::new(&rest, psi).unwrap(),
+            Method::Refactored,
+        ))
+    };
+    let plane = |z: f64, k: f64| -> Box<dyn Energy> {
+        Box::new(
+            Contact::new(
+                n,
+                Obstacle::Plane {
+                    point: Vector3::new(0.0, 0.0, z),
+                    normal: Vector3::z(),
+                },
+                k,
+                0.01,
+            )
+            .unwrap(),
+        )
+    };
+    let mut system = System::new(
+        n,
+        vec![bend(1.0), plane(0.1, 50.0), bend(3.0), plane(0.2, 50.0)],
+    )
+    .unwrap();
+    assert_eq!(
+        system.term_labels(),
+        ["custom", "contact-plane", "custom#2", "contact-plane#2"]
+    );
+    let names: Vec<String> = system.parameters().into_iter().map(|p| p.name).collect();
+    for want in [
+        "custom.c",
+        "custom#2.c",
+        "custom#2.theta_bar",
+        "contact-plane.stiffness",
+        "contact-plane#2.stiffness",
+    ] {
+        assert!(names.iter().any(|m| m == want), "{want} not in {names:?}");
+    }
+    assert_eq!(system.parameter("custom.c").unwrap(), [1.0]);
+    assert_eq!(system.parameter("custom#2.c").unwrap(), [3.0]);
+    let energy = |s: &mut System| {
+        s.evaluate(&x, Request::VALUE, Parallelism::Sequential)
+            .unwrap()
+            .energy
+    };
+    // Setting the second term's parameter is the system of the first term and the second at the new value.
+    system.set_parameter("custom#2.c", &[5.0]).unwrap();
+    system
+        .set_parameter("contact-plane#2.stiffness", &[70.0])
+        .unwrap();
+    assert_eq!(system.parameter("custom.c").unwrap(), [1.0]);
+    let parts: Vec<f64> = [bend(1.0), plane(0.1, 50.0), bend(5.0), plane(0.2, 70.0)]
+        .into_iter()
+        .map(|t| energy(&mut System::new(n, vec![t]).unwrap()))
+        .collect();
+    assert!(parts[1] > 0.0 && parts[3] > 0.0, "{parts:?}");
+    let total: f64 = parts.iter().sum();
+    assert!((energy(&mut system) - total).abs() <= 1e-13 * total);
+    // ∂E/∂c of the second term: its energy over c (it is linear in c).
+    let mut de = vec![0.0];
+    system
+        .add_parameter_derivatives(
+            &x,
+            "custom#2.c",
+            &mut ParameterOutput {
+                energy: &mut de,
+                lambda: &[],
+                contracted: &mut [],
+                direction: &[],
+                gradient: &mut [],
+            },
+        )
+        .unwrap();
+    assert!(
+        (de[0] - parts[2] / 5.0).abs() <= 1e-13 * de[0].abs(),
+        "{de:?}"
+    );
+    assert!(matches!(
+        system.parameter("custom#3.c"),
+        Err(EvalError::Parameter { .. })
+    ));
+}
+
 #[test]
 fn every_parameter_derivative_matches_central_differences() {
     let (rest, x) = sheet();

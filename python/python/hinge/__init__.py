@@ -275,7 +275,8 @@ class System:
 
     @property
     def terms(self):
-        """The terms' names, in order."""
+        """The terms' names, in order; the k-th term of a name an earlier term has is ``NAME#k``, as in
+        parameter names (two ``psi=`` terms: ``"custom"`` and ``"custom#2"``)."""
         return self._s.term_names()
 
     def _x(self, X):
@@ -286,8 +287,9 @@ class System:
         return _np.ascontiguousarray(X, dtype=_np.float64)
 
     def parameters(self):
-        """The differentiable parameters as ``[(name, length)]``, named ``TERM.NAME`` (``"bending.k"``,
-        ``"bending.theta_bar"`` (rest angles), ``"membrane.young"``, ``"gravity.g"`` ...)."""
+        """The differentiable parameters as ``[(name, length)]``, named ``TERM.NAME`` (``"tan-bending.k"``,
+        ``"tan-bending.theta_bar"`` (rest angles), ``"membrane.young"``, ``"gravity.g"``, ``"custom#2.k"`` for
+        the second ``psi=`` term ...; ``TERM`` as in ``terms``)."""
         return self._s.parameters()
 
     def parameter(self, name):
