@@ -385,13 +385,17 @@ fn symplectic_euler_with_a_moving_barrier_lifts_the_sheet_or_fails_cleanly() {
     .and_then(Contact::with_barrier)
     .and_then(|c| c.with_motion(Motion::Translation(Vector3::new(0.0, 0.0, speed))))
     .unwrap();
-    let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(MassSpring::new(&rest, 200.0).unwrap()),
-        Box::new(Gravity::new(lumped_masses(&rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
-        Box::new(contact.clone()),
-    ];
-    // 40 substeps a frame: the plane moves 1 mm a substep, a quarter of the first gap.
-    let mut sys = System::new(n, terms).unwrap();
+    let system = || {
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(MassSpring::new(&rest, 200.0).unwrap()),
+            Box::new(
+                Gravity::new(lumped_masses(&rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
+            ),
+            Box::new(contact.clone()),
+        ];
+        System::new(n, terms).unwrap()
+    };
+    let mut sys = system();
     let stepper = |sys: &System, substeps| {
         SymplecticEuler::new(
             sys,
@@ -402,6 +406,7 @@ fn symplectic_euler_with_a_moving_barrier_lifts_the_sheet_or_fails_cleanly() {
         )
         .unwrap()
     };
+    // 40 substeps a frame: the plane moves 1 mm a substep, a quarter of the first gap.
     let mut fine = stepper(&sys, 40);
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let mut probe = contact.clone();
@@ -419,17 +424,7 @@ fn symplectic_euler_with_a_moving_barrier_lifts_the_sheet_or_fails_cleanly() {
     assert!(top > 0.8 * 30.0 * dt * speed, "{top}");
     assert!(vz > 0.95 * speed, "{vz}");
     // 4 substeps a frame: the plane moves 10 mm in the first, past vertices 4–9 mm above it.
-    let mut sys = System::new(
-        n,
-        vec![
-            Box::new(MassSpring::new(&rest, 200.0).unwrap()),
-            Box::new(
-                Gravity::new(lumped_masses(&rest, 0.2), Vector3::new(0.0, 0.0, -9.81)).unwrap(),
-            ),
-            Box::new(contact),
-        ],
-    )
-    .unwrap();
+    let mut sys = system();
     let mut coarse = stepper(&sys, 4);
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     let err = coarse.advance(&mut sys, &mut x, &mut v).unwrap_err();
