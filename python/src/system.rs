@@ -22,7 +22,7 @@ use hinge_solver::newton::{
     Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
 use hinge_solver::statics::{
-    continuation_scales, continued_start, mean_edge_length, membrane_scales, minimize_continued,
+    continuation_scales, continued_start_all, mean_edge_length, minimize_continued_all,
 };
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyUntypedArrayMethods,
@@ -627,33 +627,64 @@ pub fn solve_static<'py>(
         return Err(value_error("system not built"));
     };
     let r = py.detach(|| -> Result<NewtonStats, String> {
-        let (parameter, stages) = if membrane_continuation {
+        let (parameters, stages) = if membrane_continuation {
             continuation(terms, sys, rest)?
         } else {
-            ("membrane.young", Vec::new())
+            (Vec::new(), Vec::new())
         };
+        let parameters: Vec<&str> = parameters.iter().map(String::as_str).collect();
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
-        minimize_continued(&mut newton, sys, &mut x, parameter, &stages)
+        minimize_continued_all(&mut newton, sys, &mut x, &parameters, &stages)
             .map_err(|e| format!("static solve: {e}"))
     });
     let stats = r.map_err(value_error)?;
     Ok((to_array(py, &x)?, stats_dict(py, &stats)?))
 }
 
-/// The membrane continuation of a static solve on `sys` (built from `terms`): the StVK membrane's
-/// `membrane.young` with [`membrane_scales`], or else the co-rotational membrane's
-/// `corotational-membrane.stiffness` with [`continuation_scales`] of its thickness and the Young's modulus
-/// its stiffness stands for (`k (1 + ν) / h`, so a stiffness set with `set_parameter` counts); no stages
-/// when neither needs them.
+/// The membrane continuation of a static solve on `sys` (built from `terms`): the StVK membranes'
+/// `young` (every StVK membrane term, `membrane`, `membrane#2`, …) with [`continuation_scales`] of their
+/// summed stiffness `Σ Yᵢ hᵢ` (what [`hinge_solver::statics::membrane_scales`] gives for one), or else the
+/// co-rotational membranes' `stiffness` with [`continuation_scales`] of the first one's thickness and the
+/// Young's modulus its stiffness stands for (`k (1 + ν) / h`, so a stiffness set with
+/// `set_parameter` counts); no stages when neither needs them.
 fn continuation(
     terms: &[Term],
     sys: &mut System,
     rest: &TriMesh,
-) -> Result<(&'static str, Vec<f64>), String> {
-    let stvk = membrane_scales(sys, rest).map_err(|e| e.to_string())?;
-    if !stvk.is_empty() {
-        return Ok(("membrane.young", stvk));
+) -> Result<(Vec<String>, Vec<f64>), String> {
+    // The parameter of every membrane term of one kind, by its label in the system.
+    let labels = sys.term_labels();
+    let of_kind = |corotational_kind: bool, parameter: &str| -> Vec<String> {
+        terms
+            .iter()
+            .zip(&labels)
+            .filter(|(t, _)| {
+                matches!(t, Term::Membrane { corotational, .. } if *corotational == corotational_kind)
+            })
+            .map(|(_, label)| format!("{label}.{parameter}"))
+            .collect()
+    };
+    // The StVK membranes act as one of stiffness Σ Yᵢ hᵢ at the first one's thickness.
+    let stvk = of_kind(false, "young");
+    let scalar =
+        |sys: &System, name: String| sys.parameter(&name).ok().and_then(|v| v.first().copied());
+    let (mut yh, mut first_h) = (0.0, None);
+    for label in &stvk {
+        let base = label.trim_end_matches(".young");
+        if let (Some(y), Some(h)) = (
+            scalar(sys, format!("{base}.young")),
+            scalar(sys, format!("{base}.thickness")),
+        ) {
+            yh += y * h;
+            first_h.get_or_insert(h);
+        }
+    }
+    if let Some(h) = first_h.filter(|h| *h > 0.0) {
+        let scales = continuation_scales(sys, rest, yh / h, h).map_err(|e| e.to_string())?;
+        if !scales.is_empty() {
+            return Ok((stvk, scales));
+        }
     }
     let corotational = terms.iter().find_map(|t| match t {
         Term::Membrane {
@@ -664,18 +695,18 @@ fn continuation(
         } => Some((*poisson, *thickness)),
         _ => None,
     });
-    let parameter = "corotational-membrane.stiffness";
-    let k = sys
-        .parameter(parameter)
-        .ok()
+    let parameters = of_kind(true, "stiffness");
+    let k = parameters
+        .first()
+        .and_then(|p| sys.parameter(p).ok())
         .and_then(|v| v.first().copied());
     match (corotational, k) {
         (Some((poisson, thickness)), Some(k)) if thickness > 0.0 => {
             continuation_scales(sys, rest, k * (1.0 + poisson) / thickness, thickness)
-                .map(|s| (parameter, s))
+                .map(|s| (parameters, s))
                 .map_err(|e| e.to_string())
         }
-        _ => Ok(("membrane.young", Vec::new())),
+        _ => Ok((Vec::new(), Vec::new())),
     }
 }
 
@@ -1006,15 +1037,16 @@ pub fn fit<'py>(
         ..FitOptions::default()
     };
     let r = py.detach(|| -> Result<(FitResult, usize), String> {
-        let (parameter, stages) = if membrane_continuation {
+        let (parameters, stages) = if membrane_continuation {
             continuation(&terms, sys, &rest)?
         } else {
-            ("membrane.young", Vec::new())
+            (Vec::new(), Vec::new())
         };
+        let parameters: Vec<&str> = parameters.iter().map(String::as_str).collect();
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
         // The first equilibrium through the continuation; the fit's solves start from it.
-        let start = continued_start(&mut newton, sys, &mut x, parameter, &stages);
+        let start = continued_start_all(&mut newton, sys, &mut x, &parameters, &stages);
         let loss = TargetLoss::all(target);
         let mut fit =
             Fit::new(sys, &pins, &mut newton, variables, options).map_err(|e| e.to_string())?;

@@ -379,6 +379,32 @@ def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations(
         hinge.solve_static(s, V, membrane_continuation="yes")
 
 
+def test_membrane_continuation_scales_every_membrane():
+    # The stiff strip of the test above with its membrane split into two terms of half the Young's modulus
+    # (the same energy): the continuation softens both alike (stages from their summed stiffness), so the
+    # same equilibrium in as many iterations (up to rounding); both parameters are back to their values.
+    V, F = sheet(60, 5, 31, jitter=0.05)
+    V = V * [0.3, 0.0125 * 60 / 5, 1.0]
+    young, h, nu = 1e10, 1e-4, 0.3
+    d = young * h**3 / (12 * (1 - nu * nu))
+    clamp = np.flatnonzero(V[:, 0] <= 0.3 / 60 * 1.5)
+    runs = []
+    for parts in (1, 2):
+        s = hinge.System(V, F).add_bending(energy="tan-bending", k=d)
+        for _ in range(parts):
+            s.add_membrane(young / parts, nu, h)
+        s.add_gravity(0.1).pin(clamp)
+        X, st = hinge.solve_static(s, V, gradient_tolerance=1e-9)
+        assert st["final_gradient_norm"] <= 1e-9
+        runs.append((X, st["newton_iterations"]))
+    assert s.terms == ["tan-bending", "membrane", "membrane#2", "gravity"]
+    assert s.parameter("membrane.young")[0] == young / 2 and s.parameter("membrane#2.young")[0] == young / 2
+    (X1, n1), (X2, n2) = runs
+    assert np.abs(X1 - X2).max() <= 1e-7, np.abs(X1 - X2).max()
+    print("one membrane / two halves, Newton iterations:", n1, n2)
+    assert n2 <= n1 + 2, (n1, n2)
+
+
 def test_static_solve_without_a_stvk_membrane():
     # The membrane continuation scales the StVK membrane; a system without one (springs in the plane, or
     # the co-rotational membrane) is solved by plain Newton, with or without the option.

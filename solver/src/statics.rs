@@ -137,29 +137,56 @@ pub fn minimize_continued(
     parameter: &str,
     scales: &[f64],
 ) -> Result<NewtonStats, SolverError> {
+    minimize_continued_all(newton, system, x, &[parameter], scales)
+}
+
+/// [`minimize_continued`] scaling every one of `parameters` by each stage's scale (several membranes of one
+/// system: `membrane.young` and `membrane#2.young`, see [`System::term_labels`]). On failure `x` and every
+/// parameter are unchanged.
+///
+/// # Errors
+/// As [`minimize_continued`].
+pub fn minimize_continued_all(
+    newton: &mut Newton,
+    system: &mut System,
+    x: &mut [Vector3<f64>],
+    parameters: &[&str],
+    scales: &[f64],
+) -> Result<NewtonStats, SolverError> {
     let eval = |source| SolverError::Eval {
         source,
         stats: Box::default(),
     };
-    if scales.is_empty() {
+    if scales.is_empty() || parameters.is_empty() {
         return newton.minimize(system, x, None);
     }
-    let base = system.parameter(parameter).map_err(eval)?;
+    let base = parameters
+        .iter()
+        .map(|p| system.parameter(p))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(eval)?;
+    // Every parameter back to its own values (they were accepted once, so setting them succeeds).
+    let restore = |system: &mut System| {
+        for (p, b) in parameters.iter().zip(&base) {
+            let _ = system.set_parameter(p, b);
+        }
+    };
     let mut y = x.to_vec();
     let mut stats = NewtonStats::default();
     for &s in scales {
-        let scaled: Vec<f64> = base.iter().map(|v| v * s).collect();
-        if let Err(e) = system.set_parameter(parameter, &scaled) {
-            // The values were accepted once; put them back before reporting.
-            let _ = system.set_parameter(parameter, &base);
-            return Err(eval(e));
+        for (p, b) in parameters.iter().zip(&base) {
+            let scaled: Vec<f64> = b.iter().map(|v| v * s).collect();
+            if let Err(e) = system.set_parameter(p, &scaled) {
+                restore(system);
+                return Err(eval(e));
+            }
         }
         match newton.minimize(system, &mut y, None) {
             Ok(st) => stats.absorb(&st),
             Err(e) => stats.absorb(&e.stats()),
         }
     }
-    system.set_parameter(parameter, &base).map_err(eval)?;
+    restore(system);
     let last = newton.minimize(system, &mut y, None)?;
     stats.absorb(&last);
     x.copy_from_slice(&y);
@@ -177,10 +204,21 @@ pub fn continued_start(
     parameter: &str,
     scales: &[f64],
 ) -> usize {
+    continued_start_all(newton, system, x, &[parameter], scales)
+}
+
+/// [`continued_start`] through [`minimize_continued_all`].
+pub fn continued_start_all(
+    newton: &mut Newton,
+    system: &mut System,
+    x: &mut [Vector3<f64>],
+    parameters: &[&str],
+    scales: &[f64],
+) -> usize {
     if scales.is_empty() {
         return 0;
     }
-    match minimize_continued(newton, system, x, parameter, scales) {
+    match minimize_continued_all(newton, system, x, parameters, scales) {
         Ok(stats) => stats.iterations,
         Err(e) => e.stats().iterations,
     }

@@ -1028,6 +1028,11 @@ fn symplectic_euler_matches_implicit_euler_on_small_steps_and_reports_a_blow_up(
 /// than its bending at the element scale. The mesh is irregular (random diagonals, jittered, numbered at
 /// random, corners rotated), not a row-major grid.
 fn thin_strip() -> (TriMesh, System, Pins) {
+    thin_strip_in(1)
+}
+
+/// [`thin_strip`] with its StVK membrane split into `parts` terms of `Y / parts` each (the same energy).
+fn thin_strip_in(parts: usize) -> (TriMesh, System, Pins) {
     use hinge_energies::bending::TanBending;
     use hinge_energies::membrane::StvkMembrane;
     let sheet = hinge_core::shapes::irregular_sheet(41, 4, 7).unwrap();
@@ -1046,15 +1051,94 @@ fn thin_strip() -> (TriMesh, System, Pins) {
             BendingModel::new(&rest, TanBending { k: d }).unwrap(),
             Method::Refactored,
         )),
-        Box::new(StvkMembrane::new(&rest, young, nu, h).unwrap()),
         Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
     ];
+    let terms = terms
+        .into_iter()
+        .chain((0..parts).map(|_| -> Box<dyn Energy> {
+            Box::new(StvkMembrane::new(&rest, young / parts as f64, nu, h).unwrap())
+        }))
+        .collect();
     let clamped: Vec<usize> = (0..n)
         .filter(|&v| rest.positions()[v].x <= 0.2 / 40.0 * 1.5)
         .collect();
     let pins = Pins::new(n, clamped).unwrap();
     let system = System::new(n, terms).unwrap();
     (rest, system, pins)
+}
+
+/// Two StVK membranes of half the Young's modulus (the same energy as one): continuing both by the same
+/// stages reaches the one-membrane equilibrium in as many iterations; continuing only the first does not
+/// help; a failed stage puts every parameter back bitwise.
+#[test]
+fn membrane_continuation_of_several_membranes_scales_them_all() {
+    use hinge_solver::statics::{membrane_scales, minimize_continued, minimize_continued_all};
+    let (rest, mut one, pins) = thin_strip_in(1);
+    let (_, mut two, _) = thin_strip_in(2);
+    assert_eq!(
+        two.term_labels(),
+        ["bending", "gravity", "membrane", "membrane#2"]
+    );
+    let params = NewtonParams {
+        gradient_tolerance: 1e-8,
+        step_tolerance: 1e-14,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    let scales = membrane_scales(&mut one, &rest).unwrap();
+    assert!(!scales.is_empty());
+    let newton = |sys: &System| Newton::new(sys, &pins, default_solver(), params.clone()).unwrap();
+    let x0 = rest.positions().to_vec();
+    let mut x1 = x0.clone();
+    let s1 = minimize_continued(
+        &mut newton(&one),
+        &mut one,
+        &mut x1,
+        "membrane.young",
+        &scales,
+    )
+    .unwrap();
+    let both = ["membrane.young", "membrane#2.young"];
+    let mut x2 = x0.clone();
+    let s2 = minimize_continued_all(&mut newton(&two), &mut two, &mut x2, &both, &scales).unwrap();
+    let mut x3 = x0.clone();
+    let s3 = minimize_continued(
+        &mut newton(&two),
+        &mut two,
+        &mut x3,
+        "membrane.young",
+        &scales,
+    )
+    .unwrap();
+    println!(
+        "Newton iterations: one membrane {}, two continued together {}, only the first {}",
+        s1.iterations, s2.iterations, s3.iterations
+    );
+    let diff = x1
+        .iter()
+        .zip(&x2)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(diff <= 1e-8, "{diff}");
+    assert!(s2.iterations <= s1.iterations + 2);
+    assert!(2 * s2.iterations < s3.iterations);
+    for p in both {
+        assert_eq!(two.parameter(p).unwrap(), vec![5e9], "{p}");
+    }
+    // A stage the second parameter rejects (a negative modulus) after the first was set: both put back.
+    let g = two.parameter("gravity.g").unwrap();
+    let mut x = x0.clone();
+    let r = minimize_continued_all(
+        &mut newton(&two),
+        &mut two,
+        &mut x,
+        &["gravity.g", "membrane.young"],
+        &[-1.0],
+    );
+    assert!(matches!(r, Err(SolverError::Eval { .. })), "{r:?}");
+    assert_eq!(x, x0);
+    assert_eq!(two.parameter("gravity.g").unwrap(), g);
+    assert_eq!(two.parameter("membrane.young").unwrap(), vec![5e9]);
 }
 
 #[test]
