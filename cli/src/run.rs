@@ -401,7 +401,9 @@ pub fn equilibrium(
             let hint = if unsupported
                 && matches!(
                     e,
-                    SolverError::NotConverged { .. } | SolverError::LineSearch { .. }
+                    SolverError::NotConverged { .. }
+                        | SolverError::LineSearch { .. }
+                        | SolverError::Stalled { .. }
                 ) {
                 "; no vertex is pinned, so under gravity the mesh rests only where obstacles hold it \
                  still (frictionless contact cannot hold it on a curved obstacle's side: it slides off)"

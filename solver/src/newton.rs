@@ -76,6 +76,13 @@
 //! Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
 //! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287.
 //!
+//! A solve that cannot get closer stops early instead of running to the iteration limit: after
+//! [`STALL_ITERATIONS`] accepted steps in a row shorter than [`STALL_STEP`] of the Newton direction, none
+//! lowering the smallest gradient norm so far by a tenth, it fails with [`SolverError::Stalled`]. That is
+//! where a gradient tolerance lies below what F's rounding lets the gradient reach (F summed over many
+//! elements rounds above `8ε|F|`, so the line search only accepts steps too short to matter): a strip of
+//! Y = 5e9 Pa asked for 1e-9 N crawled at 1.2e-9 … 2.3e-9 for 2 000 iterations before this rule.
+//!
 //! A failed solve leaves the caller's state untouched and reports diagnostics.
 
 use std::time::Instant;
@@ -321,6 +328,14 @@ pub enum SolverError {
         /// What was done.
         stats: Box<NewtonStats>,
     },
+    /// The iterates stopped moving before the tolerances were met: [`STALL_ITERATIONS`] accepted steps in a
+    /// row shorter than [`STALL_STEP`] of the Newton direction, none of which lowered the smallest gradient
+    /// norm so far by a tenth (module documentation, Stopping).
+    #[error("stalled after {} iterations at gradient norm {:e}: {STALL_ITERATIONS} steps in a row were shorter than {STALL_STEP:e} of Newton's and lowered it by less than a tenth (the rounding floor of this problem? a gradient tolerance below it cannot be met)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    Stalled {
+        /// What was done.
+        stats: Box<NewtonStats>,
+    },
     /// Inputs that do not fit (sizes, non-finite time step).
     #[error("{0}")]
     Input(String),
@@ -362,7 +377,8 @@ impl SolverError {
             SolverError::Eval { stats, .. }
             | SolverError::Linear { stats, .. }
             | SolverError::LineSearch { stats }
-            | SolverError::NotConverged { stats } => (**stats).clone(),
+            | SolverError::NotConverged { stats }
+            | SolverError::Stalled { stats } => (**stats).clone(),
             SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
         }
     }
@@ -612,6 +628,8 @@ impl Newton {
         let g0 = norm(&w.g);
         s.stats.gradient_norms.push(g0);
         let mut shift = 0.0_f64;
+        // Stall detection (Stopping): the smallest gradient norm so far, and the short steps since.
+        let (mut best, mut stalled) = (g0, 0);
         for it in 0..p.max_iterations {
             if p.converged(norm(&w.g), g0, None) {
                 return Ok(());
@@ -679,6 +697,17 @@ impl Newton {
             let step_test = (newton_step || at_rounding_floor).then_some((step, largest));
             if p.single_iteration || p.converged(gn, g0, step_test) {
                 return Ok(());
+            }
+            stalled = if alpha < STALL_STEP && gn > 0.9 * best {
+                stalled + 1
+            } else {
+                0
+            };
+            best = best.min(gn);
+            if stalled >= STALL_ITERATIONS {
+                return Err(SolverError::Stalled {
+                    stats: Box::new(s.stats.clone()),
+                });
             }
         }
         Err(SolverError::NotConverged {
@@ -917,6 +946,14 @@ struct Factored {
 /// Where the shift ladder starts relative to the last shift that factored
 /// ([`NewtonParams::remember_shift`]).
 const LADDER_HINT: f64 = 0.25;
+
+/// Accepted steps in a row that may stay shorter than [`STALL_STEP`] of the Newton direction without
+/// lowering the smallest gradient norm so far by a tenth before a solve stops as [`SolverError::Stalled`].
+pub const STALL_ITERATIONS: usize = 10;
+
+/// The step length (a fraction of the Newton direction) below which an accepted step counts towards
+/// [`STALL_ITERATIONS`].
+pub const STALL_STEP: f64 = 1e-6;
 
 /// Work vectors of [`Newton::minimize`], kept between solves.
 #[derive(Debug, Clone, Default)]

@@ -1141,6 +1141,47 @@ fn membrane_continuation_of_several_membranes_scales_them_all() {
     assert_eq!(two.parameter("membrane.young").unwrap(), vec![5e9]);
 }
 
+/// A gradient tolerance below what F's rounding lets the gradient reach (a stiff thin strip asked for
+/// 1e-15 N, no step test): the solve stops as stalled within a few iterations of reaching the floor instead
+/// of crawling to the iteration limit, with the caller's positions untouched; with the tolerance the strip
+/// can reach, the same solve converges.
+#[test]
+fn a_tolerance_below_the_rounding_floor_stalls_early() {
+    use hinge_solver::newton::STALL_ITERATIONS;
+    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    let (rest, mut sys, pins) = thin_strip();
+    let scales = membrane_scales(&mut sys, &rest).unwrap();
+    let params = |tolerance: f64| NewtonParams {
+        gradient_tolerance: tolerance,
+        step_tolerance: 0.0,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    // From the equilibrium the continuation reaches at 1e-8 N.
+    let mut x = rest.positions().to_vec();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-8)).unwrap();
+    minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).unwrap();
+    let x0 = x.clone();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-15)).unwrap();
+    let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
+    let stats = err.stats();
+    println!("{err}");
+    assert!(matches!(err, SolverError::Stalled { .. }), "{err}");
+    assert!(err.to_string().contains("stalled after"), "{err}");
+    assert!(
+        stats.iterations >= STALL_ITERATIONS && stats.iterations < 100,
+        "{}",
+        stats.iterations
+    );
+    let floor = stats
+        .gradient_norms
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    assert!(floor > 1e-15 && floor < 1e-7, "{floor}");
+    assert_eq!(x, x0, "a failed solve leaves the positions untouched");
+}
+
 #[test]
 fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
     use hinge_solver::statics::{continued_start, membrane_scales, minimize_continued};
