@@ -392,7 +392,7 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     let mut x = rest.positions().to_vec();
-    check_barrier_start(scene, &mut system, &x, names)?;
+    check_initial_state(&mut system, &x, names)?;
     let (parameter, stages) = membrane_stages(scene, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -641,17 +641,14 @@ pub fn simulate(
     simulate_until(scene, rest, out, None, None, progress)
 }
 
-/// A barrier contact is infinite on and inside its obstacle, so no solve can start with a vertex there: said
-/// before the first step (naming the vertex as the mesh file counts it), not as a failed frame.
-fn check_barrier_start(
-    scene: &Scene,
+/// No solve can start from a state whose energy cannot be evaluated (a vertex on or inside a barrier's
+/// obstacle, a hinge at the pole of its ψ, …), and no substep changes that state: said before the first step
+/// (naming the element as the mesh file counts it), not as a failed frame after every substep was tried.
+fn check_initial_state(
     system: &mut System,
     x: &[Vector3<f64>],
     names: Option<&FileNumbering>,
 ) -> Result<(), String> {
-    if !scene.obstacles.iter().any(|o| o.model == "barrier") {
-        return Ok(());
-    }
     system
         .evaluate(
             x,
@@ -755,7 +752,7 @@ pub fn simulate_until(
     let mut active = active_at(0.0);
     let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
-    check_barrier_start(scene, &mut system, &x, names)?;
+    check_initial_state(&mut system, &x, names)?;
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,

@@ -28,6 +28,19 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// Writes `dir/file`: built-in scene `scene` (`hinge scenes show`) with each `(from, to)` of `edits`
+/// replaced (each `from` must occur); returns its path.
+fn scene_variant(dir: &Path, file: &str, scene: &str, edits: &[(&str, &str)]) -> PathBuf {
+    let mut text = String::from_utf8(hinge(&["scenes", "show", scene]).stdout).unwrap();
+    for (from, to) in edits {
+        assert!(text.contains(from), "{scene}: no `{from}`");
+        text = text.replace(from, to);
+    }
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 /// Decodes a PNG or APNG: width, height and every frame as RGB bytes.
 fn decode_apng(path: &Path) -> (u32, u32, Vec<Vec<u8>>) {
     let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
@@ -397,15 +410,15 @@ fn every_listed_energy_evaluates() {
 }
 
 /// `hinge eval` with the contact models: the energy and gradient files of the barrier and of the smoothed
-/// penalty against their formulas evaluated here per vertex (a tilted sheet over a sphere, several vertices
-/// within the reach at different distances), and the models' errors as one line.
+/// penalty against their formulas evaluated here per vertex (a tilted, irregular, renumbered sheet over a
+/// sphere, several vertices within the reach at different distances), and the models' errors as one line.
 #[test]
 fn eval_contact_models_match_their_formulas() {
     let dir = tmp("eval-contact");
     let rest = dir.join("rest.obj");
-    let mesh =
-        hinge_core::grid::grid(6, 5, 1.0, 1.0, hinge_core::grid::Diagonal::Alternating).unwrap();
-    // Tilted so that no two vertices share a distance; the sphere touches nothing.
+    // An irregular sheet numbered at random with rotated corners, tilted so that no two vertices share a
+    // distance; the sphere touches nothing.
+    let mesh = hinge_core::shapes::irregular_sheet(6, 5, 13).unwrap();
     let x: Vec<_> = mesh
         .positions()
         .iter()
@@ -703,20 +716,19 @@ fn scenes_are_listed_shown_and_validated() {
 #[test]
 fn smoothed_and_barrier_contact_drape_like_the_quadratic_penalty() {
     let dir = tmp("smoothed-contact");
-    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
-    assert!(shown.contains("margin = 0.005\n"));
-    let smoothed_file = dir.join("smoothed.toml");
-    let barrier_file = dir.join("barrier.toml");
-    std::fs::write(
-        &smoothed_file,
-        shown.replace("margin = 0.005\n", "margin = 0.005\nsmoothing = 0.005\n"),
-    )
-    .unwrap();
-    std::fs::write(
-        &barrier_file,
-        shown.replace("margin = 0.005\n", "margin = 0.005\nmodel = \"barrier\"\n"),
-    )
-    .unwrap();
+    let margin = "margin = 0.005\n";
+    let smoothed_file = scene_variant(
+        &dir,
+        "smoothed.toml",
+        "drape",
+        &[(margin, "margin = 0.005\nsmoothing = 0.005\n")],
+    );
+    let barrier_file = scene_variant(
+        &dir,
+        "barrier.toml",
+        "drape",
+        &[(margin, "margin = 0.005\nmodel = \"barrier\"\n")],
+    );
     let args = ["--resolution", "12", "--frames", "60"];
     let with = |scene: &str| {
         let mut v = vec![scene.to_string()];
@@ -2954,11 +2966,12 @@ fn vertices_split_along_a_seam_are_named_on_reading() {
 #[test]
 fn an_overflowing_stiffness_is_named() {
     let dir = tmp("overflow");
-    let drape = String::from_utf8(hinge(&["scenes", "show", "drape"]).stdout).unwrap();
-    let scene = drape.replace("young = 2e5 ", "young = 1e308 ");
-    assert_ne!(scene, drape);
-    let path = dir.join("overflow.toml");
-    std::fs::write(&path, scene).unwrap();
+    let path = scene_variant(
+        &dir,
+        "overflow.toml",
+        "drape",
+        &[("young = 2e5 ", "young = 1e308 ")],
+    );
     let err = one_line_failure(&[
         "run",
         path.to_str().unwrap(),
@@ -3052,17 +3065,15 @@ fn an_stl_mesh_runs_as_its_welded_obj() {
 #[test]
 fn an_absurd_load_fails_with_a_finite_gradient_norm() {
     let dir = tmp("absurd-load");
-    let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
-    assert!(shown.contains("gravity = [0.0, 0.0, -9.81]"));
-    let file = dir.join("heavy.toml");
-    std::fs::write(
-        &file,
-        shown.replace(
+    let file = scene_variant(
+        &dir,
+        "heavy.toml",
+        "drape",
+        &[(
             "gravity = [0.0, 0.0, -9.81]",
             "gravity = [0.0, 0.0, -1e160]",
-        ),
-    )
-    .unwrap();
+        )],
+    );
     let err = one_line_failure(&[
         "run",
         file.to_str().unwrap(),

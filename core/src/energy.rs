@@ -164,9 +164,11 @@ pub trait Energy: Send + Sync {
 
     /// Moves vertices of `x` (positions at time `from_time`) the way a moving part of this energy moved
     /// them by the time it is placed at now ([`Energy::set_time`]): a barrier's moving obstacle carries the
-    /// vertices within its reach, so that a time step can start outside it. Default: nothing.
-    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+    /// vertices within its reach, so that a time step can start outside it. Returns whether it moved any
+    /// vertex. Default: nothing (`false`).
+    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) -> bool {
         let _ = (from_time, x);
+        false
     }
 
     /// Binds to the system's pattern, which holds at least [`Energy::couplings`]: precompute slots here.
@@ -785,14 +787,17 @@ impl System {
             .fold(1.0, f64::min)
     }
 
-    /// [`Energy::carry`] of every term in turn (nothing for a slice of the wrong length).
-    pub fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+    /// [`Energy::carry`] of every term in turn; whether any moved a vertex (nothing for a slice of the
+    /// wrong length).
+    pub fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) -> bool {
         if x.len() != self.n_vertices {
-            return;
+            return false;
         }
+        let mut moved = false;
         for t in &self.terms {
-            t.carry(from_time, x);
+            moved |= t.carry(from_time, x);
         }
+        moved
     }
 
     /// Starts a time step for every term (see [`Energy::begin_step`]).

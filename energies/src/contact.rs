@@ -331,42 +331,49 @@ impl Energy for Contact {
 
     fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
 
-    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) {
+    fn carry(&self, from_time: f64, x: &mut [Vector3<f64>]) -> bool {
         let Some((rest, motion)) = &self.motion.as_ref().filter(|_| self.barrier) else {
-            return;
+            return false;
         };
         if !from_time.is_finite() {
-            return;
+            return false;
         }
-        let before = Self::moved(rest, motion, from_time);
         let reach = self.margin;
-        for p in x.iter_mut() {
-            // Within reach of the obstacle where it was: moved so as to keep that distance to it now (a
-            // sphere's centre's displacement; for a plane, along its new normal).
-            match (before, self.obstacle) {
-                (Obstacle::Sphere { center: c0, radius }, Obstacle::Sphere { center: c1, .. })
-                    if (*p - c0).norm() - radius < reach =>
-                {
+        let mut moved = false;
+        // Within reach of the obstacle where it was: moved so as to keep that distance to it now (a sphere's
+        // centre's displacement; for a plane, along its new normal).
+        match (Self::moved(rest, motion, from_time), self.obstacle) {
+            (Obstacle::Sphere { center: c0, radius }, Obstacle::Sphere { center: c1, .. })
+                if c1 != c0 =>
+            {
+                for p in x.iter_mut().filter(|p| (**p - c0).norm() - radius < reach) {
                     *p += c1 - c0;
+                    moved = true;
                 }
-                (
-                    Obstacle::Plane {
-                        point: p0,
-                        normal: n0,
-                    },
-                    Obstacle::Plane {
-                        point: p1,
-                        normal: n1,
-                    },
-                ) => {
+            }
+            (
+                Obstacle::Plane {
+                    point: p0,
+                    normal: n0,
+                },
+                Obstacle::Plane {
+                    point: p1,
+                    normal: n1,
+                },
+            ) => {
+                for p in x.iter_mut() {
                     let d0 = n0.dot(&(*p - p0));
-                    if d0 < reach {
-                        *p += n1 * (d0 - n1.dot(&(*p - p1)));
+                    let shift = n1 * (d0 - n1.dot(&(*p - p1)));
+                    if d0 < reach && shift != Vector3::zeros() {
+                        *p += shift;
+                        moved = true;
                     }
                 }
-                _ => {}
             }
+            // A resting sphere; a rigid motion keeps the obstacle's kind.
+            _ => {}
         }
+        moved
     }
 
     fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {

@@ -653,28 +653,29 @@ fn continuation(
     sys: &mut System,
     rest: &TriMesh,
 ) -> Result<(Vec<String>, Vec<f64>), String> {
-    // The parameter of every membrane term of one kind, by its label in the system.
+    // The membrane terms of one kind with their labels in the system.
     let labels = sys.term_labels();
-    let of_kind = |corotational_kind: bool, parameter: &str| -> Vec<String> {
+    let membranes = |of_kind: bool| -> Vec<(&Term, &String)> {
         terms
             .iter()
             .zip(&labels)
-            .filter(|(t, _)| {
-                matches!(t, Term::Membrane { corotational, .. } if *corotational == corotational_kind)
-            })
-            .map(|(_, label)| format!("{label}.{parameter}"))
+            .filter(|(t, _)| matches!(t, Term::Membrane { corotational, .. } if *corotational == of_kind))
             .collect()
     };
-    // The StVK membranes act as one of stiffness Σ Yᵢ hᵢ at the first one's thickness.
-    let stvk = of_kind(false, "young");
+    let named = |list: &[(&Term, &String)], parameter: &str| -> Vec<String> {
+        list.iter()
+            .map(|(_, l)| format!("{l}.{parameter}"))
+            .collect()
+    };
     let scalar =
-        |sys: &System, name: String| sys.parameter(&name).ok().and_then(|v| v.first().copied());
+        |sys: &System, name: &str| sys.parameter(name).ok().and_then(|v| v.first().copied());
+    // The StVK membranes act as one of stiffness Σ Yᵢ hᵢ at the first one's thickness.
+    let stvk = membranes(false);
     let (mut yh, mut first_h) = (0.0, None);
-    for label in &stvk {
-        let base = label.trim_end_matches(".young");
+    for (_, label) in &stvk {
         if let (Some(y), Some(h)) = (
-            scalar(sys, format!("{base}.young")),
-            scalar(sys, format!("{base}.thickness")),
+            scalar(sys, &format!("{label}.young")),
+            scalar(sys, &format!("{label}.thickness")),
         ) {
             yh += y * h;
             first_h.get_or_insert(h);
@@ -683,31 +684,26 @@ fn continuation(
     if let Some(h) = first_h.filter(|h| *h > 0.0) {
         let scales = continuation_scales(sys, rest, yh / h, h).map_err(|e| e.to_string())?;
         if !scales.is_empty() {
-            return Ok((stvk, scales));
+            return Ok((named(&stvk, "young"), scales));
         }
     }
-    let corotational = terms.iter().find_map(|t| match t {
+    // Else the co-rotational ones, by their stiffness, from the first one's material.
+    let corotational = membranes(true);
+    if let Some((
         Term::Membrane {
-            poisson,
-            thickness,
-            corotational: true,
-            ..
-        } => Some((*poisson, *thickness)),
-        _ => None,
-    });
-    let parameters = of_kind(true, "stiffness");
-    let k = parameters
-        .first()
-        .and_then(|p| sys.parameter(p).ok())
-        .and_then(|v| v.first().copied());
-    match (corotational, k) {
-        (Some((poisson, thickness)), Some(k)) if thickness > 0.0 => {
-            continuation_scales(sys, rest, k * (1.0 + poisson) / thickness, thickness)
-                .map(|s| (parameters, s))
-                .map_err(|e| e.to_string())
-        }
-        _ => Ok((Vec::new(), Vec::new())),
+            poisson, thickness, ..
+        },
+        label,
+    )) = corotational.first()
+        && *thickness > 0.0
+        && let Some(k) = scalar(sys, &format!("{label}.stiffness"))
+    {
+        let (poisson, thickness) = (*poisson, *thickness);
+        return continuation_scales(sys, rest, k * (1.0 + poisson) / thickness, thickness)
+            .map(|s| (named(&corotational, "stiffness"), s))
+            .map_err(|e| e.to_string());
     }
+    Ok((Vec::new(), Vec::new()))
 }
 
 /// Implicit Euler time stepping on a system: `ImplicitEuler(system, X0, dt, density, V0=None, …)`.

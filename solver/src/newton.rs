@@ -1151,18 +1151,20 @@ impl ImplicitEuler {
             })
             .and_then(|()| {
                 // The start (Step bounds, module documentation): x̂, or as far towards it as a barrier
-                // admits from x, with vertices a moving obstacle carries moved along with it.
-                let mut start = x_hat.clone();
-                let mut from = x.to_vec();
-                system.carry(t_end - dt, &mut from);
-                let bound = system.max_step(&from, &x_hat);
-                if bound < 1.0 || from != x {
-                    for ((s, p), h) in start.iter_mut().zip(&from).zip(&x_hat) {
-                        *s = p + (h - p) * bound;
+                // admits from x, with vertices a moving obstacle carries moved along with it. `start`
+                // holds where the move begins (x, carried) until it becomes the start.
+                let mut start = x.to_vec();
+                let carried = system.carry(t_end - dt, &mut start);
+                let bound = system.max_step(&start, &x_hat);
+                if bound < 1.0 || carried {
+                    for (s, h) in start.iter_mut().zip(&x_hat) {
+                        *s += (h - *s) * bound;
                     }
                     for &pv in self.pins.vertices() {
                         start[pv] = x_hat[pv];
                     }
+                } else {
+                    start.copy_from_slice(&x_hat);
                 }
                 let inertia = Inertia {
                     masses: self.masses.clone(),

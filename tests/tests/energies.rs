@@ -1250,7 +1250,7 @@ fn moving_barrier_obstacles_carry_vertices_within_reach_at_their_distance() {
             })
             .collect();
         let mut moved = x.clone();
-        c.carry(t0, &mut moved);
+        assert!(c.carry(t0, &mut moved));
         let mut carried = 0;
         for (p, q) in x.iter().zip(&moved) {
             let d0 = before.distance(p);
@@ -1276,7 +1276,7 @@ fn moving_barrier_obstacles_carry_vertices_within_reach_at_their_distance() {
                 .unwrap(),
         ] {
             let mut same = x.clone();
-            other.carry(t0, &mut same);
+            assert!(!other.carry(t0, &mut same));
             assert_eq!(same, x);
         }
     }
