@@ -419,7 +419,7 @@ enum Kind {
     DampedOnePass,
     /// The same two terms as two models (two passes).
     DampedTwoPasses,
-    /// The per-hinge PSD projection (`HessianMode::ProjectPerHinge`: a Jacobi eigendecomposition per hinge;
+    /// The per-hinge PSD projection (`HessianMode::ProjectPerHinge`: an 8×8 eigendecomposition per hinge;
     /// there is no closed form, see `hinge_core::bending`'s projection module), one thread.
     Projected,
     /// A full refactored evaluation, one thread, of the ψ model `k` of [`psi_models`] (macro or run-time ψ

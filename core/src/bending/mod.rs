@@ -56,6 +56,7 @@
 //! threads or partitions: results are bitwise identical for any thread count. Nothing allocates, sorts or
 //! searches during an evaluation; unrequested outputs are not computed.
 
+mod eigen;
 mod hinge_pass;
 mod per_hinge;
 mod projection;

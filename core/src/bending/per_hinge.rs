@@ -9,7 +9,7 @@ use crate::error::EvalError;
 use crate::hinge::{BLOCK_PAIRS as PAIRS, HingeFrames, Stencil, hessian_blocks};
 use crate::psi::HingePsi;
 
-use super::projection::project_psd;
+use super::projection::project_hinge_psd;
 use super::scatter::{Ctx, Owned};
 use super::{HessianMode, Method};
 
@@ -41,7 +41,11 @@ impl<P: HingePsi> Ctx<'_, P> {
                 }
             }
             if self.request.hessian {
-                let hm = if project { project_psd(hm) } else { hm };
+                let hm = if project {
+                    project_hinge_psd(&hm, &st)
+                } else {
+                    hm
+                };
                 for (q, &(a, b)) in PAIRS.iter().enumerate() {
                     let blk: Matrix3<f64> = hm.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
                     own.add_block(slots[q], hv[a], hv[b], &blk);
@@ -101,7 +105,7 @@ impl<P: HingePsi> Ctx<'_, P> {
                         .copy_from(&blk.transpose());
                 }
             }
-            let projected = project_psd(local);
+            let projected = project_hinge_psd(&local, &st);
             for (q, &(a, b)) in PAIRS.iter().enumerate() {
                 let blk: Matrix3<f64> = projected.fixed_view::<3, 3>(3 * a, 3 * b).into_owned();
                 own.add_block(slots[q], hv[a], hv[b], &blk);

@@ -17,108 +17,159 @@
 //!   what a per-term analytic eigensystem gives) is PSD but not the nearest PSD matrix: it differs from the
 //!   exact projection by far more than 1e-10 (test `termwise_projection_is_not_the_projection`).
 //!
-//! The projection is therefore computed by an eigensolver: nalgebra's, whose `symmetric_eigen` (0.35)
-//! returned NaN eigenvectors on a rank-one hinge Hessian with entries of 1e-2 and 1e-64 from the drape, so
-//! a non-finite result falls back to a cyclic Jacobi eigensolver of our own (no allocation, converges for
-//! every symmetric input, robust on badly scaled matrices; test `jacobi_survives_the_drape_matrix`).
+//! The projection is therefore computed by an eigensolver (module `eigen`: Householder tridiagonalization
+//! and implicit QR with Wilkinson shifts on fixed-size arrays, cyclic Jacobi as the fallback when it does
+//! not converge). nalgebra 0.35's `symmetric_eigen`, used before, returned NaN eigenvectors on a rank-one
+//! hinge Hessian with entries of 1e-2 and 1e-64 from the drape (test `jacobi_survives_the_drape_matrix`).
+//!
+//! # The null space: an 8×8 eigenproblem instead of 12×12
+//! `Hess θ`'s four-dimensional null space is known in closed form: the three translations, and the
+//! *stretch along the hinge*, vertex `i` moving by `((x_i − x1)·ê) ê` (ê the unit hinge edge). Every move
+//! along `ê` keeps both triangles in their planes, so θ is constant on the affine space of such moves and
+//! only the gradients of the hinge ends change (through where the wings' feet fall on the edge); the
+//! affine stretch keeps those feet at the same fractions of the edge, so `∇θ` does not change either
+//! (test `hess_theta_null_space_is_the_translations_and_the_stretch_along_the_edge`, against num-dual).
+//! Since `∇θ` lies in the range, every hinge Hessian `H` of a ψ of θ alone vanishes on that null space,
+//! `H = Q H₈ Qᵀ` with an orthonormal 12×8 basis `Q` of its complement, and the projection is
+//! `Q (H₈)₊ Qᵀ` ([`project_hinge_psd`]): the eigensolver works on 8×8 (test
+//! `hinge_projection_equals_faer_projection`: 10 000 random and sliver stencils, ψ′ and ψ″ of either sign
+//! over six orders of magnitude, within 6e-15 relative of faer's 12×12 projection). This makes the
+//! `projected` bench row about twice as fast; it does not give the eigenvalues in closed form (the
+//! monodromy argument above is about `H₈`'s eight non-zero ones).
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{SMatrix, SVector, Vector3};
 
-/// Sweeps after which cyclic Jacobi stops even if some off-diagonal entry is still above the threshold (a
-/// safeguard: cyclic Jacobi converges quadratically, and the 10 000-stencil test checks the result).
-const MAX_SWEEPS: usize = 60;
+#[cfg(test)]
+use super::eigen::jacobi;
+use super::eigen::symmetric_eigen;
+use crate::hinge::Stencil;
 
-/// Eigenvalues and eigenvectors (columns) of the symmetric matrix `a` (its lower triangle is read) by cyclic
-/// Jacobi rotations, on a copy scaled to unit largest entry. Off-diagonal entries below `ε² ‖A‖_F` are
-/// treated as zero; the eigenvalues are accurate to a few `ε ‖A‖`.
-pub(crate) fn symmetric_eigen<const N: usize>(
-    a: &SMatrix<f64, N, N>,
-) -> (SVector<f64, N>, SMatrix<f64, N, N>) {
-    let mut m = SMatrix::<f64, N, N>::zeros();
-    let mut scale = 0.0_f64;
-    for j in 0..N {
-        for i in j..N {
-            scale = scale.max(a[(i, j)].abs());
-        }
-    }
-    let mut v = SMatrix::<f64, N, N>::identity();
-    if !(scale > 0.0 && scale.is_finite()) {
-        // Zero (or non-finite: reported by the caller's finiteness checks) — nothing to rotate.
-        return (SVector::from_fn(|i, _| a[(i, i)]), v);
-    }
-    for j in 0..N {
-        for i in j..N {
-            m[(i, j)] = a[(i, j)] / scale;
-            m[(j, i)] = m[(i, j)];
-        }
-    }
-    let frob = m.norm();
-    let negligible = f64::EPSILON * f64::EPSILON * frob;
-    for _ in 0..MAX_SWEEPS {
-        let mut rotated = false;
-        for p in 0..N {
-            for q in p + 1..N {
-                let apq = m[(p, q)];
-                if apq.abs() <= negligible {
-                    m[(p, q)] = 0.0;
-                    m[(q, p)] = 0.0;
-                    continue;
-                }
-                rotated = true;
-                // The rotation that zeroes m[p][q] (Rutishauser's formulation).
-                let theta = (m[(q, q)] - m[(p, p)]) / (2.0 * apq);
-                let t = if theta.abs() > 1e150 {
-                    0.5 / theta
-                } else {
-                    theta.signum() / (theta.abs() + theta.mul_add(theta, 1.0).sqrt())
-                };
-                let c = 1.0 / t.mul_add(t, 1.0).sqrt();
-                let s = t * c;
-                m[(p, p)] -= t * apq;
-                m[(q, q)] += t * apq;
-                m[(p, q)] = 0.0;
-                m[(q, p)] = 0.0;
-                for r in 0..N {
-                    if r != p && r != q {
-                        let (arp, arq) = (m[(r, p)], m[(r, q)]);
-                        let np = c * arp - s * arq;
-                        let nq = s * arp + c * arq;
-                        m[(r, p)] = np;
-                        m[(p, r)] = np;
-                        m[(r, q)] = nq;
-                        m[(q, r)] = nq;
-                    }
-                    let (vrp, vrq) = (v[(r, p)], v[(r, q)]);
-                    v[(r, p)] = c * vrp - s * vrq;
-                    v[(r, q)] = s * vrp + c * vrq;
+/// The nearest positive semi-definite matrix (in the Frobenius norm: eigenvalues clamped at zero) of a
+/// symmetric 12×12 matrix, exactly symmetric, by a 12×12 eigen-decomposition (any symmetric matrix; hinge
+/// Hessians take [`project_hinge_psd`], which works on 8×8).
+pub(super) fn project_psd(h: SMatrix<f64, 12, 12>) -> SMatrix<f64, 12, 12> {
+    let (values, vectors) = symmetric_eigen(&h);
+    positive_part(&values, &vectors)
+}
+
+/// The nearest positive semi-definite matrix of a hinge Hessian `h = ψ″ ∇θ∇θᵀ + ψ′ Hess θ` of the stencil
+/// `st` (any ψ of θ alone), computed on the 8-dimensional complement of its known null space (module
+/// documentation, "The null space"): `h = Q H₈ Qᵀ` with the orthonormal 12×8 basis `Q` of
+/// [`complement_basis`], so the projection is `Q (H₈)₊ Qᵀ` and the eigensolver works on 8×8 instead of
+/// 12×12. Equal to [`project_psd`] up to rounding (test `hinge_projection_equals_faer_projection`); a
+/// stencil whose hinge edge has no direction (never the case once θ was evaluated) takes [`project_psd`].
+pub(super) fn project_hinge_psd(h: &SMatrix<f64, 12, 12>, st: &Stencil) -> SMatrix<f64, 12, 12> {
+    let Some(q) = complement_basis(st) else {
+        return project_psd(*h);
+    };
+    // H₈ = Qᵀ (H Q): y[c] = H q_c (columns of H are contiguous), then the lower triangle, mirrored.
+    let mut y = [[0.0_f64; 12]; 8];
+    for (c, yc) in y.iter_mut().enumerate() {
+        for j in 0..12 {
+            let qjc = q[(j, c)];
+            if qjc != 0.0 {
+                for (yi, hij) in yc.iter_mut().zip(h.column(j).iter()) {
+                    *yi += hij * qjc;
                 }
             }
         }
-        if !rotated {
-            break;
+    }
+    let mut reduced = SMatrix::<f64, 8, 8>::zeros();
+    for (c, yc) in y.iter().enumerate() {
+        for r in c..8 {
+            let v = q.column(r).iter().zip(yc).map(|(a, b)| a * b).sum::<f64>();
+            reduced[(r, c)] = v;
+            reduced[(c, r)] = v;
         }
     }
-    (SVector::from_fn(|i, _| m[(i, i)] * scale), v)
+    let (values, vectors) = symmetric_eigen(&reduced);
+    // Σ_k max(λ_k, 0) w_k w_kᵀ with w_k = Q v_k, over the positive eigenvalues only: the lower triangle,
+    // mirrored (exactly symmetric).
+    let mut p = SMatrix::<f64, 12, 12>::zeros();
+    for k in 0..8 {
+        let l = values[k];
+        if l > 0.0 {
+            let w = q * vectors.column(k);
+            for j in 0..12 {
+                let lw = l * w[j];
+                for i in j..12 {
+                    p[(i, j)] += lw * w[i];
+                }
+            }
+        }
+    }
+    for j in 0..12 {
+        for i in j + 1..12 {
+            p[(j, i)] = p[(i, j)];
+        }
+    }
+    p
 }
 
-/// The nearest positive semi-definite matrix (in the Frobenius norm: eigenvalues clamped at zero) of a
-/// symmetric 12×12 matrix, exactly symmetric. nalgebra's implicit-QR eigensolver is tried first: it is
-/// 3.3× faster than the Jacobi sweeps (`hinge bench --only refactored,projected --sizes 150`, interleaved:
-/// 7.0–8.1 against 25.2–26.8 µs per hinge; at 401×401 the `projected` row is 29.2× `refactored` this way,
-/// 86.8× with Jacobi alone); a non-finite result (it returned NaN on a drape hinge, see the module
-/// documentation) falls back to [`symmetric_eigen`].
-pub(super) fn project_psd(h: SMatrix<f64, 12, 12>) -> SMatrix<f64, 12, 12> {
-    let e = h.symmetric_eigen();
-    if e.eigenvalues
-        .iter()
-        .chain(e.eigenvectors.iter())
-        .all(|v| v.is_finite())
-    {
-        positive_part(&e.eigenvalues, &e.eigenvectors)
-    } else {
-        let (values, vectors) = symmetric_eigen(&h);
-        positive_part(&values, &vectors)
+/// An orthonormal basis (columns) of the complement of `Hess θ`'s null space at the stencil `st`: with `ê`
+/// the unit hinge edge, `a`, `b` completing it to an orthonormal frame and `u₁, u₂, u₃` an orthonormal
+/// basis of the zero-sum vectors of ℝ⁴ (one weight per stencil vertex), the columns are `u_k ⊗ a`,
+/// `u_k ⊗ b` (moves across the edge without a translation) and `z₁ ⊗ ê`, `z₂ ⊗ ê` with `z₁, z₂` the
+/// zero-sum weights orthogonal to the stretch `s_i = (x_i − x1)·ê`. `None` when the edge has no direction.
+fn complement_basis(st: &Stencil) -> Option<SMatrix<f64, 12, 8>> {
+    let edge = st[2] - st[1];
+    let length = edge.norm();
+    if !(length > 0.0 && length.is_finite()) {
+        return None;
     }
+    let e_hat = edge / length;
+    let (a, b) = orthonormal_pair(&e_hat);
+    // Helmert's zero-sum basis of ℝ⁴.
+    let r2 = std::f64::consts::FRAC_1_SQRT_2;
+    let r6 = 1.0 / 6f64.sqrt();
+    let r12 = 1.0 / 12f64.sqrt();
+    let u = [
+        [r2, -r2, 0.0, 0.0],
+        [r6, r6, -2.0 * r6, 0.0],
+        [r12, r12, r12, -3.0 * r12],
+    ];
+    // The stretch along the edge in those coordinates (non-zero: s1 = 0 and s2 = |e|).
+    let s: [f64; 4] = std::array::from_fn(|i| (st[i] - st[1]).dot(&e_hat));
+    let c = Vector3::from_fn(|k, _| (0..4).map(|i| u[k][i] * s[i]).sum::<f64>());
+    let c_norm = c.norm();
+    if !(c_norm > 0.0 && c_norm.is_finite()) {
+        return None;
+    }
+    let (z1, z2) = orthonormal_pair(&(c / c_norm));
+    let weights = |z: &Vector3<f64>| -> [f64; 4] {
+        std::array::from_fn(|i| (0..3).map(|k| z[k] * u[k][i]).sum::<f64>())
+    };
+    let mut q = SMatrix::<f64, 12, 8>::zeros();
+    let mut put = |col: usize, w: &[f64; 4], dir: &Vector3<f64>| {
+        for i in 0..4 {
+            for d in 0..3 {
+                q[(3 * i + d, col)] = w[i] * dir[d];
+            }
+        }
+    };
+    for (k, uk) in u.iter().enumerate() {
+        put(2 * k, uk, &a);
+        put(2 * k + 1, uk, &b);
+    }
+    put(6, &weights(&z1), &e_hat);
+    put(7, &weights(&z2), &e_hat);
+    Some(q)
+}
+
+/// Two unit vectors completing the unit vector `n` to an orthonormal frame (the first orthogonal to the
+/// coordinate axis `n` is least aligned with).
+fn orthonormal_pair(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let abs = n.abs();
+    let axis = if abs.x <= abs.y && abs.x <= abs.z {
+        Vector3::x()
+    } else if abs.y <= abs.z {
+        Vector3::y()
+    } else {
+        Vector3::z()
+    };
+    let a = n.cross(&axis).normalize();
+    let b = n.cross(&a);
+    (a, b)
 }
 
 /// `Σ_k max(λ_k, 0) q_k q_kᵀ`, symmetrized, from eigenvalues and eigenvector columns.
@@ -142,8 +193,6 @@ mod tests {
     use super::*;
     use crate::autodiff::hinge_angle_autodiff;
     use crate::grid::SplitMix64;
-    use crate::hinge::Stencil;
-    use nalgebra::Vector3;
 
     /// `∇θ` and `Hess θ` of a stencil by num-dual (independent of the closed-form kernels); `None` for a
     /// degenerate stencil.
@@ -186,7 +235,7 @@ mod tests {
             let d2psi = rng.symmetric() * 10f64.powf(3.0 * rng.symmetric());
             let h = k * dpsi + g * g.transpose() * d2psi;
             let q = faer_projection(&h);
-            let (values, vectors) = symmetric_eigen(&h);
+            let (values, vectors) = jacobi(&h);
             let jacobi = positive_part(&values, &vectors);
             let p = project_psd(h);
             worst = worst
@@ -201,6 +250,80 @@ mod tests {
             assert!(min >= -1e-13 * h.norm(), "projection not PSD: {min:e}");
             done += 1;
         }
+        assert!(worst <= 1e-12, "worst relative difference {worst:e}");
+    }
+
+    /// Stencils with slivers: a wing whose height over the edge is 1e-6 of the edge's length, or a wing
+    /// corner next to a hinge end, in random position, scale and orientation.
+    fn sliver_stencil(rng: &mut SplitMix64) -> Stencil {
+        let mut st = random_stencil(rng);
+        let e = st[2] - st[1];
+        let (w, tiny) = if rng.symmetric() > 0.0 {
+            (0, 1e-6)
+        } else {
+            (3, 1e-5)
+        };
+        let foot = st[1] + e * (0.5 + rng.symmetric());
+        let off = st[w] - foot;
+        let normal = (off - e * (off.dot(&e) / e.norm_squared())).normalize();
+        st[w] = foot + normal * (tiny * e.norm());
+        st
+    }
+
+    #[test]
+    fn hess_theta_null_space_is_the_translations_and_the_stretch_along_the_edge() {
+        // num-dual's Hess θ (independent of the basis' construction) annihilates every vector orthogonal
+        // to the complement basis, and the basis is orthonormal: Q Qᵀ H Q Qᵀ = H.
+        let mut rng = SplitMix64(4242);
+        let mut worst = 0.0_f64;
+        for n in 0..10_000 {
+            let st = if n % 4 == 3 {
+                sliver_stencil(&mut rng)
+            } else {
+                random_stencil(&mut rng)
+            };
+            let Some((_, k)) = theta_derivatives(&st) else {
+                continue;
+            };
+            let q = complement_basis(&st).expect("a stencil with a hinge edge");
+            let gram = q.transpose() * q;
+            assert!((gram - SMatrix::<f64, 8, 8>::identity()).norm() <= 1e-14);
+            let p = q * q.transpose();
+            worst = worst.max((p * k * p - k).norm() / k.norm());
+            // The stretch along the edge itself, built independently of the basis.
+            let e = (st[2] - st[1]).normalize();
+            let stretch =
+                SVector::<f64, 12>::from_fn(|r, _| (st[r / 3] - st[1]).dot(&e) * e[r % 3]);
+            assert!((k * stretch).norm() <= 1e-11 * k.norm() * stretch.norm());
+        }
+        eprintln!("largest relative part of Hess θ outside the complement: {worst:e}");
+        assert!(worst <= 1e-12, "Hess θ outside the complement: {worst:e}");
+    }
+
+    #[test]
+    fn hinge_projection_equals_faer_projection() {
+        let mut rng = SplitMix64(0x5eed_1234);
+        let (mut worst, mut done) = (0.0_f64, 0);
+        while done < 10_000 {
+            let st = if done % 4 == 3 {
+                sliver_stencil(&mut rng)
+            } else {
+                random_stencil(&mut rng)
+            };
+            let Some((g, k)) = theta_derivatives(&st) else {
+                continue;
+            };
+            let dpsi = rng.symmetric() * 10f64.powf(3.0 * rng.symmetric());
+            let d2psi = rng.symmetric() * 10f64.powf(3.0 * rng.symmetric());
+            let h = k * dpsi + g * g.transpose() * d2psi;
+            let p = project_hinge_psd(&h, &st);
+            worst = worst.max((p - faer_projection(&h)).norm() / h.norm());
+            // The projection keeps the null space: no translation enters it.
+            let t = SVector::<f64, 12>::from_fn(|r, _| if r % 3 == 1 { 1.0 } else { 0.0 });
+            assert!((p * t).norm() <= 1e-14 * h.norm());
+            done += 1;
+        }
+        eprintln!("reduced projection against faer's: worst relative difference {worst:e}");
         assert!(worst <= 1e-12, "worst relative difference {worst:e}");
     }
 
@@ -225,7 +348,7 @@ mod tests {
             h[(i, j)] = v;
             h[(j, i)] = v;
         }
-        let (values, vectors) = symmetric_eigen(&h);
+        let (values, vectors) = jacobi(&h);
         let jacobi = positive_part(&values, &vectors);
         assert!((jacobi - faer_projection(&h)).norm() <= 1e-14 * h.norm());
         let p = project_psd(h);
