@@ -4,9 +4,10 @@ use std::path::PathBuf;
 
 use crate::scene::CustomPsi;
 use clap::Args;
-use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::bending::{BendingModel, HessianMode, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::HingePsi;
 use hinge_core::psi::runtime::ParamValue;
 use hinge_core::{TriMesh, export};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
@@ -132,6 +133,10 @@ pub struct EvalArgs {
     /// refactored, per_hinge or autodiff.
     #[arg(long, default_value = "refactored")]
     method: String,
+    /// The hinge Hessian: exact, gauss-newton (max(ψ″, 0) ∇θ∇θᵀ) or projected (each hinge's 12×12
+    /// Hessian with its negative eigenvalues clamped to zero); hinge energies and --psi only.
+    #[arg(long, default_value = "exact")]
+    hessian: String,
     /// Worker threads (default: all logical CPUs; a larger count is clamped to them with a warning on
     /// stderr).
     #[arg(long)]
@@ -197,42 +202,76 @@ pub fn custom_psi(expr: &str, params: &[String]) -> Result<CustomPsi, String> {
     CustomPsi::new(expr, values)
 }
 
+/// The energies of `hinge eval` that are hinge terms (the ones `--hessian` applies to).
+const HINGE_ENERGIES: [&str; 5] = [
+    "discrete-shells",
+    "tan-bending",
+    "willmore",
+    "bridson",
+    "viscous-damping",
+];
+
+/// A hinge term named `name` of a freshly built `model`, its Hessian mode set to `mode`.
+fn hinge_term<P: HingePsi + Send + 'static>(
+    name: &str,
+    model: Result<BendingModel<P>, hinge_core::EvalError>,
+    method: Method,
+    mode: HessianMode,
+) -> Result<Box<dyn Energy>, String> {
+    let err = |e: hinge_core::EvalError| format!("{name}: {e}");
+    let mut model = model.map_err(err)?;
+    model.set_hessian_mode(mode).map_err(err)?;
+    Ok(Box::new(HingeTerm::new(name, model, method)))
+}
+
 /// Builds the one-term system for `energy`.
 fn build(
     energy: &str,
     p: &std::collections::BTreeMap<&'static str, f64>,
     rest: &TriMesh,
     method: Method,
+    mode: HessianMode,
 ) -> Result<System, String> {
     let g = |k: &str| p.get(k).copied().unwrap_or(0.0);
     let model_err = |e: hinge_core::EvalError| format!("{energy}: {e}");
     let n = rest.n_vertices();
+    if mode != HessianMode::Exact && !HINGE_ENERGIES.contains(&energy) {
+        return Err(format!(
+            "--hessian {} applies to hinge energies ({}, or --psi), not `{energy}`",
+            mode.name(),
+            HINGE_ENERGIES.join(", ")
+        ));
+    }
     let term: Box<dyn Energy> = match energy {
-        "discrete-shells" => Box::new(HingeTerm::new(
+        "discrete-shells" => hinge_term(
             energy,
-            BendingModel::new(rest, DiscreteShells { k: g("k") }).map_err(model_err)?,
+            BendingModel::new(rest, DiscreteShells { k: g("k") }),
             method,
-        )),
-        "tan-bending" => Box::new(HingeTerm::new(
+            mode,
+        )?,
+        "tan-bending" => hinge_term(
             energy,
-            BendingModel::new(rest, TanBending { k: g("k") }).map_err(model_err)?,
+            BendingModel::new(rest, TanBending { k: g("k") }),
             method,
-        )),
-        "willmore" => Box::new(HingeTerm::new(
+            mode,
+        )?,
+        "willmore" => hinge_term(
             energy,
-            BendingModel::new(rest, Willmore { k: g("k") }).map_err(model_err)?,
+            BendingModel::new(rest, Willmore { k: g("k") }),
             method,
-        )),
-        "bridson" => Box::new(HingeTerm::new(
+            mode,
+        )?,
+        "bridson" => hinge_term(
             energy,
-            BendingModel::new(rest, Bridson { k: g("k") }).map_err(model_err)?,
+            BendingModel::new(rest, Bridson { k: g("k") }),
             method,
-        )),
+            mode,
+        )?,
         "viscous-damping" => {
             let mut m =
                 BendingModel::new(rest, ViscousDamping { kd: g("kd") }).map_err(model_err)?;
             m.set_step(rest.positions(), g("dt")).map_err(model_err)?;
-            Box::new(HingeTerm::new(energy, m, method))
+            hinge_term(energy, Ok(m), method, mode)?
         }
         "mass-spring" => Box::new(
             MassSpring::new(rest, g("k"))
@@ -326,6 +365,12 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
             args.method
         )
     })?;
+    let mode = HessianMode::from_name(&args.hessian).ok_or_else(|| {
+        format!(
+            "unknown --hessian `{}` (exact, gauss-newton, projected)",
+            args.hessian
+        )
+    })?;
     let custom = match &args.psi {
         Some(expr) => Some(custom_psi(expr, &args.params)?),
         None => None,
@@ -354,22 +399,17 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .map_err(|e| format!("thread pool: {e}"))?;
     let mut system = match custom {
         Some(psi) => {
-            let e = |e: hinge_core::EvalError| format!("custom ψ: {e}");
-            let term: Box<dyn Energy> = match psi {
-                CustomPsi::Small(p) => Box::new(HingeTerm::new(
-                    "custom",
-                    BendingModel::new(&rest, p).map_err(e)?,
-                    method,
-                )),
-                CustomPsi::Large(p) => Box::new(HingeTerm::new(
-                    "custom",
-                    BendingModel::new(&rest, p).map_err(e)?,
-                    method,
-                )),
+            let term = match psi {
+                CustomPsi::Small(p) => {
+                    hinge_term("custom", BendingModel::new(&rest, p), method, mode)?
+                }
+                CustomPsi::Large(p) => {
+                    hinge_term("custom", BendingModel::new(&rest, p), method, mode)?
+                }
             };
             System::new(rest.n_vertices(), vec![term]).map_err(|e| e.to_string())?
         }
-        None => build(energy, &params, &rest, method)?,
+        None => build(energy, &params, &rest, method, mode)?,
     };
     let e = pool
         .install(|| system.evaluate(deformed.positions(), Request::ALL, Parallelism::Rayon))
@@ -391,9 +431,10 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         .hinges()
         .len();
     println!(
-        "{{\"energy\": {:?}, \"method\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {n_hinges}}}",
+        "{{\"energy\": {:?}, \"method\": \"{}\", \"hessian\": \"{}\", \"threads\": {threads}, \"n_vertices\": {}, \"n_hinges\": {n_hinges}}}",
         e.energy,
         method.name(),
+        mode.name(),
         rest.n_vertices(),
     );
     Ok(())

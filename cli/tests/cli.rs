@@ -412,6 +412,153 @@ fn every_listed_energy_evaluates() {
 /// `hinge eval` with the contact models: the energy and gradient files of the barrier and of the smoothed
 /// penalty against their formulas evaluated here per vertex (a tilted, irregular, renumbered sheet over a
 /// sphere, several vertices within the reach at different distances), and the models' errors as one line.
+/// The dense symmetric matrix of a Matrix Market file `hinge eval` wrote (lower triangle stored).
+fn read_dense_mtx(path: &Path) -> hinge_core::nalgebra::DMatrix<f64> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('%'));
+    let n: usize = lines
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let mut m = hinge_core::nalgebra::DMatrix::<f64>::zeros(n, n);
+    for line in lines {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        let (r, c) = (
+            w[0].parse::<usize>().unwrap() - 1,
+            w[1].parse::<usize>().unwrap() - 1,
+        );
+        let v: f64 = w[2].parse().unwrap();
+        m[(r, c)] = v;
+        m[(c, r)] = v;
+    }
+    m
+}
+
+#[test]
+fn eval_hessian_modes_write_the_models_hessians() {
+    let dir = tmp("eval-hessian");
+    let (rest, deformed) = (dir.join("rest.obj"), dir.join("deformed.obj"));
+    // An irregular sheet (random numbering, rotated corners), bent into folds of both signs.
+    let mesh = hinge_core::shapes::irregular_sheet(5, 4, 21).unwrap();
+    hinge_core::obj::write_obj(&rest, mesh.positions(), mesh.triangles()).unwrap();
+    let x: Vec<_> = mesh
+        .positions()
+        .iter()
+        .map(|p| {
+            hinge_core::nalgebra::Vector3::new(
+                p.x,
+                p.y,
+                0.4 * (5.0 * p.x).sin() * (4.0 * p.y).cos(),
+            )
+        })
+        .collect();
+    hinge_core::obj::write_obj(&deformed, &x, mesh.triangles()).unwrap();
+    let eval = |mode: &str| {
+        let out = dir.join(mode);
+        let o = hinge(&[
+            "eval",
+            "--rest",
+            rest.to_str().unwrap(),
+            "--deformed",
+            deformed.to_str().unwrap(),
+            "--energy",
+            "tan-bending",
+            "--hessian",
+            mode,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(json["hessian"], mode);
+        let g = std::fs::read_to_string(out.join("gradient.txt")).unwrap();
+        (g, read_dense_mtx(&out.join("hessian.mtx")))
+    };
+    let (g_exact, exact) = eval("exact");
+    let smallest =
+        |m: &hinge_core::nalgebra::DMatrix<f64>| m.clone().symmetric_eigenvalues().min() / m.amax();
+    assert!(
+        smallest(&exact) < -1e-3,
+        "the exact Hessian is indefinite here"
+    );
+    for (mode, lib) in [
+        (
+            "projected",
+            hinge_core::bending::HessianMode::ProjectPerHinge,
+        ),
+        (
+            "gauss-newton",
+            hinge_core::bending::HessianMode::GaussNewton,
+        ),
+    ] {
+        let (g, h) = eval(mode);
+        assert_eq!(
+            g, g_exact,
+            "{mode}: the gradient does not depend on the Hessian mode"
+        );
+        assert!(smallest(&h) >= -1e-13, "{mode}: {:e}", smallest(&h));
+        // The library's model in the same mode, evaluated at the positions the files hold.
+        let rest_mesh = hinge_core::obj::read_obj(&rest).unwrap();
+        let def_mesh = hinge_core::obj::read_obj(&deformed).unwrap();
+        let mut model = BendingModel::new(&rest_mesh, TanBending { k: 1.0 }).unwrap();
+        model.set_hessian_mode(lib).unwrap();
+        let e = model
+            .evaluate(
+                def_mesh.positions(),
+                Request::ALL,
+                Method::Refactored,
+                Parallelism::Sequential,
+            )
+            .unwrap();
+        let p = model.pattern();
+        let (cp, ri) = (p.col_ptr(), p.row_idx());
+        let mut expected = hinge_core::nalgebra::DMatrix::<f64>::zeros(h.nrows(), h.ncols());
+        for c in 0..cp.len() - 1 {
+            for q in cp[c]..cp[c + 1] {
+                let (a, b) = (p.caller_dof(ri[q]), p.caller_dof(c));
+                expected[(a, b)] = e.hessian[q];
+                expected[(b, a)] = e.hessian[q];
+            }
+        }
+        assert_eq!(h, expected, "{mode}");
+    }
+    let rest = rest.to_str().unwrap();
+    let out = dir.join("bad");
+    let out = out.to_str().unwrap();
+    let err = one_line_failure(&[
+        "eval",
+        "--rest",
+        rest,
+        "--energy",
+        "tan-bending",
+        "--hessian",
+        "nope",
+        "--out",
+        out,
+    ]);
+    assert!(err.contains("unknown --hessian `nope`"), "{err}");
+    let err = one_line_failure(&[
+        "eval",
+        "--rest",
+        rest,
+        "--energy",
+        "membrane",
+        "--hessian",
+        "projected",
+        "--out",
+        out,
+    ]);
+    assert!(
+        err.contains("applies to hinge energies") && err.contains("`membrane`"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn eval_contact_models_match_their_formulas() {
     let dir = tmp("eval-contact");

@@ -8,7 +8,7 @@
 mod system;
 
 use hinge_cli::scene::CustomPsi;
-use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::bending::{BendingModel, HessianMode, Method, Parallelism, Request};
 use hinge_core::bending::{Evaluation, Scratch};
 use hinge_core::export::CsrLayout;
 use hinge_core::layout::Positions;
@@ -197,9 +197,10 @@ impl Model {
 
 #[pymethods]
 impl Model {
-    /// `BendingModel(V, F, energy=None, psi=None, method="refactored", threads=None, params={})`.
+    /// `BendingModel(V, F, energy=None, psi=None, method="refactored", threads=None, params={},
+    /// hessian="exact")`.
     #[new]
-    #[pyo3(signature = (v, f, energy=None, psi=None, method="refactored", threads=None, params=None))]
+    #[pyo3(signature = (v, f, energy=None, psi=None, method="refactored", threads=None, params=None, hessian="exact"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -210,10 +211,16 @@ impl Model {
         method: &str,
         threads: Option<usize>,
         params: Option<&Bound<'_, PyDict>>,
+        hessian: &str,
     ) -> PyResult<Self> {
         let method = Method::from_name(method).ok_or_else(|| {
             value_error(format!(
                 "unknown method `{method}` (refactored, per_hinge, autodiff)"
+            ))
+        })?;
+        let mode = HessianMode::from_name(hessian).ok_or_else(|| {
+            value_error(format!(
+                "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
             ))
         })?;
         let (label, text, values) = psi_spec(energy, psi, params)?;
@@ -238,7 +245,8 @@ impl Model {
                 CustomPsi::Large(p) => Inner::Large(BendingModel::new(&mesh, p).map_err(e)?),
             })
         });
-        let inner = inner.map_err(value_error)?;
+        let mut inner = inner.map_err(value_error)?;
+        with_model!(&mut inner, m => m.set_hessian_mode(mode)).map_err(value_error)?;
         let (csr, hinges, buffers) = with_model!(&inner, m => (
             CsrLayout::new(m.pattern()),
             m.topology().hinges().iter().map(|h| h.vertices).collect::<Vec<_>>(),
@@ -278,6 +286,12 @@ impl Model {
     #[getter]
     fn n_hinges(&self) -> usize {
         self.hinges.len()
+    }
+
+    /// The Hessian the model assembles: `exact`, `gauss-newton` or `projected`.
+    #[getter]
+    fn hessian(&self) -> &'static str {
+        with_model!(&self.inner, m => m.hessian_mode().name())
     }
 
     /// The energy's name (`custom` for a ψ string).

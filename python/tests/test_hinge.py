@@ -78,6 +78,41 @@ def test_methods_agree_and_psi_strings_equal_the_builtins_bitwise():
     assert E3 == E and np.array_equal(g3, g) and np.array_equal(H3.data, H.data)
 
 
+def test_projected_hessian_is_the_sum_of_per_hinge_projections():
+    """hessian="projected" against each hinge's exact Hessian (a model of its two triangles alone)
+    projected by numpy's eigh; "gauss-newton" is PSD too; energy and gradient never change."""
+    V, F = sheet(4, 3, 11)
+    X = bent(V, 12)
+    X[:, 2] += 0.25 * np.sin(5.0 * V[:, 0] + 1.0) * np.cos(4.0 * V[:, 1])
+    exact = hinge.BendingModel(V, F, energy="tan-bending", k=0.9)
+    E, g, H = exact.evaluate(X)
+    Hd = H.toarray()
+    assert exact.hessian == "exact"
+    assert np.linalg.eigvalsh(Hd).min() < -1e-3 * np.abs(Hd).max(), "indefinite at this state"
+    n = 3 * len(V)
+    expected = np.zeros((n, n))
+    for idx in exact.hinges:
+        one = hinge.BendingModel(V[idx], np.array([[0, 1, 2], [3, 2, 1]]), energy="tan-bending", k=0.9)
+        _, _, h = one.evaluate(X[idx])
+        w, U = np.linalg.eigh(h.toarray())
+        dofs = (3 * idx[:, None] + np.arange(3)).ravel()
+        expected[np.ix_(dofs, dofs)] += (U * np.maximum(w, 0.0)) @ U.T
+    # The methods agree to these tolerances on exact Hessians too (test_methods_agree_...).
+    for method, tol in [("refactored", 1e-12), ("per_hinge", 1e-10), ("autodiff", 1e-10)]:
+        proj = hinge.BendingModel(V, F, energy="tan-bending", k=0.9, method=method, hessian="projected")
+        assert proj.hessian == "projected"
+        Ep, gp, Hp = proj.evaluate(X)
+        assert abs(Ep - E) <= 1e-12 * abs(E) and np.abs(gp - g).max() <= 1e-11 * np.abs(g).max()
+        assert np.abs(Hp.toarray() - expected).max() <= tol * np.abs(expected).max(), method
+    gn = hinge.BendingModel(V, F, energy="tan-bending", k=0.9, hessian="gauss-newton")
+    Hg = gn.evaluate(X)[2].toarray()
+    assert np.linalg.eigvalsh(Hg).min() >= -1e-13 * np.abs(Hg).max()
+    with pytest.raises(ValueError, match="unknown hessian `nope`"):
+        hinge.BendingModel(V, F, hessian="nope")
+    with pytest.raises(ValueError, match="hessian must be a string"):
+        hinge.BendingModel(V, F, hessian=1)
+
+
 def test_per_hinge_parameters_follow_the_hinge_order():
     V, F = sheet(4, 5, 5)
     X = bent(V, 6)

@@ -124,6 +124,29 @@ pub enum HessianMode {
     ProjectPerHinge,
 }
 
+impl HessianMode {
+    /// All modes.
+    pub const ALL: [HessianMode; 3] = [
+        HessianMode::Exact,
+        HessianMode::GaussNewton,
+        HessianMode::ProjectPerHinge,
+    ];
+
+    /// The name used on the command line and in Python: `exact`, `gauss-newton`, `projected`.
+    pub fn name(self) -> &'static str {
+        match self {
+            HessianMode::Exact => "exact",
+            HessianMode::GaussNewton => "gauss-newton",
+            HessianMode::ProjectPerHinge => "projected",
+        }
+    }
+
+    /// Parses [`HessianMode::name`].
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == s)
+    }
+}
+
 /// What an evaluation computes; nothing else is computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Request {

@@ -89,15 +89,21 @@ class BendingModel:
     built-in energy, or ``BendingModel(V, F, psi="k * a * (theta - theta_bar).powi(2)", k=1.0)`` for any ψ
     of the language. ``method`` is ``"refactored"`` (the triangle-refactored Hessian), ``"per_hinge"`` or
     ``"autodiff"``; ``threads`` sets the size of the model's own thread pool (default: all cores).
+    ``hessian`` chooses the Hessian: ``"exact"``, ``"gauss-newton"`` (``max(ψ″, 0) ∇θ∇θᵀ``) or
+    ``"projected"`` (each hinge's 12×12 Hessian with its negative eigenvalues clamped to zero, for
+    projected-Newton solvers); the energy and gradient are exact in every mode.
     """
 
-    def __init__(self, V, F, energy=None, psi=None, method="refactored", threads=None, **params):
+    def __init__(self, V, F, energy=None, psi=None, method="refactored", threads=None, hessian="exact",
+                 **params):
         if energy is None and psi is None:
             energy = "discrete-shells"
         if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool)):
             raise ValueError(f"threads must be an integer, got {threads!r}")
         p = {k: _param(k, v) for k, v in params.items()}
-        self._m = _hinge.BendingModel(_vertices(V), _faces(F), energy, psi, method, threads, p)
+        if not isinstance(hessian, str):
+            raise ValueError(f"hessian must be a string, got {hessian!r}")
+        self._m = _hinge.BendingModel(_vertices(V), _faces(F), energy, psi, method, threads, p, hessian)
         indptr, indices = self._m.pattern()
         self._indptr, self._indices = indptr, indices
         self.n_vertices = self._m.n_vertices
@@ -112,6 +118,11 @@ class BendingModel:
     def energy(self):
         """The energy's name (``"custom"`` for a ψ string)."""
         return self._m.energy
+
+    @property
+    def hessian(self):
+        """The Hessian the model assembles: ``"exact"``, ``"gauss-newton"`` or ``"projected"``."""
+        return self._m.hessian
 
     def _x(self, X):
         X = _np.asarray(X)
