@@ -487,14 +487,17 @@ impl PySystem {
         Ok((p.into_pyarray(py), c.into_pyarray(py)))
     }
 
-    /// `(E, g, data)` of the whole system at `x` (data in `pattern()` order, None without `hessian`).
-    #[pyo3(signature = (x, hessian=true))]
+    /// `(E, g, data)` of the whole system at `x` (data in `pattern()` order, None without `hessian`); with
+    /// `definite`, the positive semi-definite Hessian of every term ([`Request::definite`]) instead of the
+    /// exact one.
+    #[pyo3(signature = (x, hessian=true, definite=false))]
     #[allow(clippy::type_complexity)]
     fn evaluate_raw<'py>(
         &mut self,
         py: Python<'py>,
         x: PyReadonlyArray2<'py, f64>,
         hessian: bool,
+        definite: bool,
     ) -> PyResult<(
         f64,
         Bound<'py, PyArray1<f64>>,
@@ -509,7 +512,7 @@ impl PySystem {
             value: true,
             gradient: true,
             hessian,
-            definite: false,
+            definite: hessian && definite,
         };
         let r = py.detach(|| -> Result<_, String> {
             sys.evaluate_into(&pos, request, Parallelism::Rayon, out)

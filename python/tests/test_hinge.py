@@ -113,6 +113,32 @@ def test_projected_hessian_is_the_sum_of_per_hinge_projections():
         hinge.BendingModel(V, F, hessian=1)
 
 
+def test_system_definite_hessian_is_psd_and_exact_where_nothing_is_clamped():
+    V, F = sheet(5, 4, 17)
+    # Bending alone: the definite Hessian is the Gauss-Newton one of the bending model.
+    X = bent(V, 18)
+    X[:, 2] += 0.2 * np.sin(5.0 * V[:, 0]) * np.cos(4.0 * V[:, 1])
+    s = hinge.System(V, F).add_bending(energy="tan-bending", k=0.8)
+    E, g, H = s.evaluate(X)
+    Ed, gd, Hd = s.evaluate(X, definite=True)
+    assert Ed == E and np.array_equal(gd, g)
+    Hgn = hinge.BendingModel(V, F, energy="tan-bending", k=0.8, hessian="gauss-newton").evaluate(X)[2]
+    assert np.abs((Hd - Hgn).toarray()).max() <= 1e-13 * np.abs(Hgn).max()
+    # A membrane in tension: nothing to clamp, the definite Hessian is the exact one.
+    m = hinge.System(V, F).add_membrane(2e5, 0.3, 5e-4)
+    stretched = V * np.array([1.1, 1.05, 1.0])
+    H = m.evaluate(stretched)[2]
+    assert np.abs((m.evaluate(stretched, definite=True)[2] - H).toarray()).max() <= 1e-12 * np.abs(H).max()
+    # Compressed, bent and pressed into a sphere: exact indefinite, definite positive semi-definite.
+    full = (hinge.System(V, F).add_bending(energy="tan-bending", k=0.8).add_membrane(2e5, 0.3, 5e-4)
+            .add_gravity(0.1).add_sphere((0.5, 0.5, -0.98), 1.0, 2e3, margin=0.01))
+    squeezed = X * np.array([0.9, 0.95, 1.0])
+    H = full.evaluate(squeezed)[2].toarray()
+    Hd = full.evaluate(squeezed, definite=True)[2].toarray()
+    assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()
+    assert np.linalg.eigvalsh(Hd).min() >= -1e-12 * np.abs(Hd).max()
+
+
 def test_per_hinge_parameters_follow_the_hinge_order():
     V, F = sheet(4, 5, 5)
     X = bent(V, 6)

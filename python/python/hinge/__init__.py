@@ -315,9 +315,12 @@ class System:
         self._s.set_parameter(str(name), [float(x) for x in v])
         return self
 
-    def evaluate(self, X, hessian=True):
-        """``(E, g, H)`` of the whole system (``(E, g)`` with ``hessian=False``)."""
-        E, g, data = self._s.evaluate_raw(self._x(X), bool(hessian))
+    def evaluate(self, X, hessian=True, definite=False):
+        """``(E, g, H)`` of the whole system (``(E, g)`` with ``hessian=False``). ``definite=True`` gives the
+        positive semi-definite Hessian Newton's ``project-on-demand`` uses instead of the exact one (per
+        term: Gauss–Newton hinges, membrane stress clamped to its positive part in the geometric stiffness,
+        compressive spring and obstacle-curvature terms dropped); energy and gradient stay exact."""
+        E, g, data = self._s.evaluate_raw(self._x(X), bool(hessian), bool(definite))
         if not hessian:
             return E, g
         indptr, indices = self._s.pattern()
