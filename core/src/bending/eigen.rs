@@ -2,8 +2,11 @@
 //!
 //! - [`tridiagonal_qr`]: Householder reduction to tridiagonal form, then the implicit symmetric QR
 //!   iteration with Wilkinson shifts (Golub & Van Loan, *Matrix Computations*, Algorithms 8.3.1–8.3.3),
-//!   on fixed-size arrays. The fast path: 8×8 in about a third of nalgebra 0.35's `symmetric_eigen`
-//!   (module `tests`, `hinge bench --only refactored,projected`).
+//!   on fixed-size arrays (no allocation). The fast path; a throwaway timing loop on 20 000 reduced hinge
+//!   Hessians measured 2.4 µs per 8×8 decomposition against 3.0–3.5 µs for nalgebra 0.35's
+//!   `symmetric_eigen` (the bench row `projected`, `hinge bench --only refactored,projected`, is what
+//!   counts). Its cost is the rotations' dependency chain (a square root and a division each), about
+//!   two QR iterations per eigenvalue.
 //! - [`jacobi`]: cyclic Jacobi rotations, slower but converging for every symmetric input; the fallback
 //!   when the QR iteration does not converge within its iteration budget.
 //!
