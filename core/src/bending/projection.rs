@@ -33,7 +33,7 @@
 //! `H = Q H₈ Qᵀ` with an orthonormal 12×8 basis `Q` of its complement, and the projection is
 //! `Q (H₈)₊ Qᵀ` ([`project_hinge_psd`]): the eigensolver works on 8×8 (test
 //! `hinge_projection_equals_faer_projection`: 10 000 random and sliver stencils, ψ′ and ψ″ of either sign
-//! over six orders of magnitude, within 6e-15 relative of faer's 12×12 projection). This makes the
+//! over six orders of magnitude, within 6.6e-15 relative of faer's 12×12 projection). This makes the
 //! `projected` bench row about twice as fast; it does not give the eigenvalues in closed form (the
 //! monodromy argument above is about `H₈`'s eight non-zero ones).
 
