@@ -3,7 +3,7 @@
 
 use hinge_cli::scene::CustomPsi;
 use hinge_core::TriMesh;
-use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
+use hinge_core::bending::{BendingModel, HessianMode, Method, Parallelism, Request};
 use hinge_core::energy::SystemEvaluation;
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::export::CsrLayout;
@@ -39,6 +39,7 @@ enum Term {
         name: String,
         text: String,
         values: Vec<(String, ParamValue)>,
+        mode: HessianMode,
     },
     Membrane {
         young: f64,
@@ -80,17 +81,22 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
     let e = |e: hinge_core::EvalError| e.to_string();
     let n = rest.n_vertices();
     Ok(match t {
-        Term::Bending { name, text, values } => match CustomPsi::new(text, values.clone())? {
-            CustomPsi::Small(p) => Box::new(HingeTerm::new(
-                name.clone(),
-                BendingModel::new(rest, p).map_err(e)?,
-                Method::Refactored,
-            )),
-            CustomPsi::Large(p) => Box::new(HingeTerm::new(
-                name.clone(),
-                BendingModel::new(rest, p).map_err(e)?,
-                Method::Refactored,
-            )),
+        Term::Bending {
+            name,
+            text,
+            values,
+            mode,
+        } => match CustomPsi::new(text, values.clone())? {
+            CustomPsi::Small(p) => {
+                let mut m = BendingModel::new(rest, p).map_err(e)?;
+                m.set_hessian_mode(*mode).map_err(e)?;
+                Box::new(HingeTerm::new(name.clone(), m, Method::Refactored))
+            }
+            CustomPsi::Large(p) => {
+                let mut m = BendingModel::new(rest, p).map_err(e)?;
+                m.set_hessian_mode(*mode).map_err(e)?;
+                Box::new(HingeTerm::new(name.clone(), m, Method::Refactored))
+            }
         },
         Term::Membrane {
             young,
@@ -288,16 +294,28 @@ impl PySystem {
         })
     }
 
-    /// A hinge bending term: a built-in energy or a ψ string, with its parameters.
-    #[pyo3(signature = (energy=None, psi=None, params=None))]
+    /// A hinge bending term: a built-in energy or a ψ string, with its parameters, assembling the Hessian
+    /// `hessian` names (`exact`, `gauss-newton`, `projected`).
+    #[pyo3(signature = (energy=None, psi=None, params=None, hessian="exact"))]
     fn add_bending(
         &mut self,
         energy: Option<&str>,
         psi: Option<&str>,
         params: Option<&Bound<'_, PyDict>>,
+        hessian: &str,
     ) -> PyResult<()> {
+        let mode = HessianMode::from_name(hessian).ok_or_else(|| {
+            value_error(format!(
+                "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
+            ))
+        })?;
         let (name, text, values) = psi_spec(energy, psi, params)?;
-        self.add(Term::Bending { name, text, values })
+        self.add(Term::Bending {
+            name,
+            text,
+            values,
+            mode,
+        })
     }
 
     /// A membrane (Young's modulus, Poisson ratio, thickness): `kind` `stvk` (St. Venant–Kirchhoff) or

@@ -137,6 +137,21 @@ def test_system_definite_hessian_is_psd_and_exact_where_nothing_is_clamped():
     Hd = full.evaluate(squeezed, definite=True)[2].toarray()
     assert np.linalg.eigvalsh(H).min() < -1e-6 * np.abs(H).max()
     assert np.linalg.eigvalsh(Hd).min() >= -1e-12 * np.abs(Hd).max()
+    # A bending term in the projected mode keeps it in definite evaluations (projected Newton's Hessian):
+    # the bending model's projected Hessian plus the other terms' definite ones.
+    proj = (hinge.System(V, F).add_bending(energy="tan-bending", hessian="projected", k=0.8)
+            .add_membrane(2e5, 0.3, 5e-4))
+    rest_of_it = hinge.System(V, F).add_membrane(2e5, 0.3, 5e-4)
+    Hb = hinge.BendingModel(V, F, energy="tan-bending", k=0.8, hessian="projected").evaluate(squeezed)[2]
+    want = (Hb + rest_of_it.evaluate(squeezed, definite=True)[2]).toarray()
+    for definite in [True, False]:
+        got = proj.evaluate(squeezed, definite=definite)[2].toarray()
+        if definite:
+            assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+        else:  # the exact membrane is indefinite under compression
+            assert np.abs(got - want).max() > 1e-6 * np.abs(want).max()
+    with pytest.raises(ValueError, match="unknown hessian `nope`"):
+        hinge.System(V, F).add_bending(energy="tan-bending", hessian="nope")
 
 
 def test_per_hinge_parameters_follow_the_hinge_order():

@@ -233,10 +233,14 @@ class System:
         ``first`` (a mesh split along seams is cut there)."""
         return [tuple(p) for p in self._s.coincident_vertices]
 
-    def add_bending(self, energy=None, psi=None, **params):
+    def add_bending(self, energy=None, psi=None, hessian="exact", **params):
+        """A hinge bending term (a built-in ``energy`` or a ``psi`` string, with its parameters);
+        ``hessian`` as in ``BendingModel``: ``"exact"``, ``"gauss-newton"`` or ``"projected"``."""
         if energy is None and psi is None:
             energy = "discrete-shells"
-        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()})
+        if not isinstance(hessian, str):
+            raise ValueError(f"hessian must be a string, got {hessian!r}")
+        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, hessian)
         return self
 
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
