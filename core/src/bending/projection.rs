@@ -83,27 +83,7 @@ pub(super) fn project_hinge_psd(h: &SMatrix<f64, 12, 12>, st: &Stencil) -> SMatr
         }
     }
     let (values, vectors) = symmetric_eigen(&reduced);
-    // Σ_k max(λ_k, 0) w_k w_kᵀ with w_k = Q v_k, over the positive eigenvalues only: the lower triangle,
-    // mirrored (exactly symmetric).
-    let mut p = SMatrix::<f64, 12, 12>::zeros();
-    for k in 0..8 {
-        let l = values[k];
-        if l > 0.0 {
-            let w = q * vectors.column(k);
-            for j in 0..12 {
-                let lw = l * w[j];
-                for i in j..12 {
-                    p[(i, j)] += lw * w[i];
-                }
-            }
-        }
-    }
-    for j in 0..12 {
-        for i in j + 1..12 {
-            p[(j, i)] = p[(i, j)];
-        }
-    }
-    p
+    positive_part(&values, &(q * vectors))
 }
 
 /// An orthonormal basis (columns) of the complement of `Hess θ`'s null space at the stencil `st`: with `ê`
@@ -172,20 +152,32 @@ fn orthonormal_pair(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     (a, b)
 }
 
-/// `Σ_k max(λ_k, 0) q_k q_kᵀ`, symmetrized, from eigenvalues and eigenvector columns.
-fn positive_part<const N: usize>(
+/// `Σ_k max(λ_k, 0) w_k w_kᵀ` over the positive eigenvalues `λ_k` (`values`) and the columns `w_k` of
+/// `vectors` (eigenvectors, or eigenvectors mapped back by a basis): the lower triangle, mirrored, so the
+/// result is exactly symmetric.
+fn positive_part<const R: usize, const N: usize>(
     values: &SVector<f64, N>,
-    vectors: &SMatrix<f64, N, N>,
-) -> SMatrix<f64, N, N> {
-    let mut p = SMatrix::<f64, N, N>::zeros();
+    vectors: &SMatrix<f64, R, N>,
+) -> SMatrix<f64, R, R> {
+    let mut p = SMatrix::<f64, R, R>::zeros();
     for k in 0..N {
         let l = values[k];
         if l > 0.0 {
-            let q = vectors.column(k);
-            p += (q * q.transpose()) * l;
+            let w = vectors.column(k);
+            for j in 0..R {
+                let lw = l * w[j];
+                for i in j..R {
+                    p[(i, j)] += lw * w[i];
+                }
+            }
         }
     }
-    (p + p.transpose()) * 0.5
+    for j in 0..R {
+        for i in j + 1..R {
+            p[(j, i)] = p[(i, j)];
+        }
+    }
+    p
 }
 
 #[cfg(test)]
