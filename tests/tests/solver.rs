@@ -1182,6 +1182,42 @@ fn a_tolerance_below_the_rounding_floor_stalls_early() {
     assert_eq!(x, x0, "a failed solve leaves the positions untouched");
 }
 
+/// The line search judges trials within F's rounding by their slope (hinge_solver::newton, Rounding), so a
+/// tolerance a little above the strip's rounding floor is reached: from the equilibrium at 1e-8 N, the
+/// same strip as above asked for 5e-10 N converges. With F's value alone and the allowance `8ε|F|` (before
+/// the slope test) the same solve stalled at 8.8e-10 N.
+#[test]
+fn a_tolerance_just_above_the_rounding_floor_is_reached() {
+    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    let (rest, mut sys, pins) = thin_strip();
+    let scales = membrane_scales(&mut sys, &rest).unwrap();
+    let params = |tolerance: f64| NewtonParams {
+        gradient_tolerance: tolerance,
+        step_tolerance: 0.0,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    let mut x = rest.positions().to_vec();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-8)).unwrap();
+    minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).unwrap();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params(5e-10)).unwrap();
+    let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+    let last = stats.gradient_norms.last().copied().unwrap();
+    println!("{} iterations, ‖∇E‖ {last:e}", stats.iterations);
+    assert!(last <= 5e-10, "{last}");
+    // The gradient norm the solve reports is the gradient's: evaluated independently at the result.
+    let mut out = sys
+        .evaluate(&x, Request::GRADIENT, Parallelism::Sequential)
+        .unwrap();
+    for &p in pins.vertices() {
+        for k in 0..3 {
+            out.gradient[3 * p + k] = 0.0;
+        }
+    }
+    let g = out.gradient.iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!((g - last).abs() <= 1e-3 * last, "{g} vs {last}");
+}
+
 #[test]
 fn membrane_continuation_matches_plain_newton_and_restores_the_parameter() {
     use hinge_solver::statics::{continued_start, membrane_scales, minimize_continued};
