@@ -202,13 +202,55 @@ pub fn custom_psi(expr: &str, params: &[String]) -> Result<CustomPsi, String> {
     CustomPsi::new(expr, values)
 }
 
-/// The energies of `hinge eval` that are hinge terms (the ones `--hessian` applies to).
-const HINGE_ENERGIES: [&str; 5] = [
-    "discrete-shells",
-    "tan-bending",
-    "willmore",
-    "bridson",
-    "viscous-damping",
+/// Builds a hinge term of `hinge eval` from its parameters (`g(key)`, 0 when absent), its Hessian mode set.
+type HingeBuilder = fn(
+    &str,
+    &dyn Fn(&str) -> f64,
+    &TriMesh,
+    Method,
+    HessianMode,
+) -> Result<Box<dyn Energy>, String>;
+
+/// The energies of `hinge eval` that are hinge terms (the ones `--hessian` applies to), each with its
+/// builder: one list serves the dispatch and the error message.
+const HINGE_ENERGIES: [(&str, HingeBuilder); 5] = [
+    ("discrete-shells", |name, g, rest, method, mode| {
+        hinge_term(
+            name,
+            BendingModel::new(rest, DiscreteShells { k: g("k") }),
+            method,
+            mode,
+        )
+    }),
+    ("tan-bending", |name, g, rest, method, mode| {
+        hinge_term(
+            name,
+            BendingModel::new(rest, TanBending { k: g("k") }),
+            method,
+            mode,
+        )
+    }),
+    ("willmore", |name, g, rest, method, mode| {
+        hinge_term(
+            name,
+            BendingModel::new(rest, Willmore { k: g("k") }),
+            method,
+            mode,
+        )
+    }),
+    ("bridson", |name, g, rest, method, mode| {
+        hinge_term(
+            name,
+            BendingModel::new(rest, Bridson { k: g("k") }),
+            method,
+            mode,
+        )
+    }),
+    ("viscous-damping", |name, g, rest, method, mode| {
+        let model = BendingModel::new(rest, ViscousDamping { kd: g("kd") })
+            .and_then(|mut m| m.set_step(rest.positions(), g("dt")).map(|()| m));
+        hinge_term(name, model, method, mode)
+    }),
 ];
 
 /// A hinge term named `name` of a freshly built `model`, its Hessian mode set to `mode`.
@@ -235,44 +277,19 @@ fn build(
     let g = |k: &str| p.get(k).copied().unwrap_or(0.0);
     let model_err = |e: hinge_core::EvalError| format!("{energy}: {e}");
     let n = rest.n_vertices();
-    if mode != HessianMode::Exact && !HINGE_ENERGIES.contains(&energy) {
+    if let Some((_, make)) = HINGE_ENERGIES.iter().find(|(name, _)| *name == energy) {
+        let term = make(energy, &g, rest, method, mode)?;
+        return System::new(n, vec![term]).map_err(|e| e.to_string());
+    }
+    if mode != HessianMode::Exact {
+        let names: Vec<&str> = HINGE_ENERGIES.iter().map(|(name, _)| *name).collect();
         return Err(format!(
             "--hessian {} applies to hinge energies ({}, or --psi), not `{energy}`",
             mode.name(),
-            HINGE_ENERGIES.join(", ")
+            names.join(", ")
         ));
     }
     let term: Box<dyn Energy> = match energy {
-        "discrete-shells" => hinge_term(
-            energy,
-            BendingModel::new(rest, DiscreteShells { k: g("k") }),
-            method,
-            mode,
-        )?,
-        "tan-bending" => hinge_term(
-            energy,
-            BendingModel::new(rest, TanBending { k: g("k") }),
-            method,
-            mode,
-        )?,
-        "willmore" => hinge_term(
-            energy,
-            BendingModel::new(rest, Willmore { k: g("k") }),
-            method,
-            mode,
-        )?,
-        "bridson" => hinge_term(
-            energy,
-            BendingModel::new(rest, Bridson { k: g("k") }),
-            method,
-            mode,
-        )?,
-        "viscous-damping" => {
-            let mut m =
-                BendingModel::new(rest, ViscousDamping { kd: g("kd") }).map_err(model_err)?;
-            m.set_step(rest.positions(), g("dt")).map_err(model_err)?;
-            hinge_term(energy, Ok(m), method, mode)?
-        }
         "mass-spring" => Box::new(
             MassSpring::new(rest, g("k"))
                 .map_err(model_err)?
