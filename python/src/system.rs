@@ -8,6 +8,7 @@ use hinge_core::energy::SystemEvaluation;
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::export::CsrLayout;
 use hinge_core::nalgebra::Vector3;
+use hinge_core::psi::HingePsi;
 use hinge_core::psi::runtime::ParamValue;
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::corotational::CorotationalMembrane;
@@ -77,6 +78,18 @@ enum Term {
     },
 }
 
+/// A bending term named `name` of ψ `psi` on `rest`, its Hessian in `mode` (the refactored method).
+fn bending_term<P: HingePsi + Send + 'static>(
+    rest: &TriMesh,
+    name: &str,
+    psi: P,
+    mode: HessianMode,
+) -> Result<Box<dyn Energy>, String> {
+    let mut m = BendingModel::new(rest, psi).map_err(|e| e.to_string())?;
+    m.set_hessian_mode(mode).map_err(|e| e.to_string())?;
+    Ok(Box::new(HingeTerm::new(name, m, Method::Refactored)))
+}
+
 fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
     let e = |e: hinge_core::EvalError| e.to_string();
     let n = rest.n_vertices();
@@ -87,16 +100,8 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             values,
             mode,
         } => match CustomPsi::new(text, values.clone())? {
-            CustomPsi::Small(p) => {
-                let mut m = BendingModel::new(rest, p).map_err(e)?;
-                m.set_hessian_mode(*mode).map_err(e)?;
-                Box::new(HingeTerm::new(name.clone(), m, Method::Refactored))
-            }
-            CustomPsi::Large(p) => {
-                let mut m = BendingModel::new(rest, p).map_err(e)?;
-                m.set_hessian_mode(*mode).map_err(e)?;
-                Box::new(HingeTerm::new(name.clone(), m, Method::Refactored))
-            }
+            CustomPsi::Small(p) => bending_term(rest, name, p, *mode)?,
+            CustomPsi::Large(p) => bending_term(rest, name, p, *mode)?,
         },
         Term::Membrane {
             young,
