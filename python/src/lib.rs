@@ -59,6 +59,24 @@ pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
+/// A per-hinge method by its name (`refactored`, `per_hinge`, `autodiff`), or `ValueError`.
+pub(crate) fn parse_method(method: &str) -> PyResult<Method> {
+    Method::from_name(method).ok_or_else(|| {
+        value_error(format!(
+            "unknown method `{method}` (refactored, per_hinge, autodiff)"
+        ))
+    })
+}
+
+/// A hinge Hessian mode by its name (`exact`, `gauss-newton`, `projected`), or `ValueError`.
+pub(crate) fn parse_hessian(hessian: &str) -> PyResult<HessianMode> {
+    HessianMode::from_name(hessian).ok_or_else(|| {
+        value_error(format!(
+            "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
+        ))
+    })
+}
+
 /// A bending term's name, ψ text and parameters.
 pub(crate) type PsiSpec = (String, String, Vec<(String, ParamValue)>);
 
@@ -213,16 +231,8 @@ impl Model {
         params: Option<&Bound<'_, PyDict>>,
         hessian: &str,
     ) -> PyResult<Self> {
-        let method = Method::from_name(method).ok_or_else(|| {
-            value_error(format!(
-                "unknown method `{method}` (refactored, per_hinge, autodiff)"
-            ))
-        })?;
-        let mode = HessianMode::from_name(hessian).ok_or_else(|| {
-            value_error(format!(
-                "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
-            ))
-        })?;
+        let method = parse_method(method)?;
+        let mode = parse_hessian(hessian)?;
         let (label, text, values) = psi_spec(energy, psi, params)?;
         let pool = match threads {
             Some(0) => return Err(value_error("threads must be at least 1")),

@@ -31,7 +31,7 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::{mesh_from, psi_spec, value_error};
+use crate::{mesh_from, parse_hessian, parse_method, psi_spec, value_error};
 
 /// One term of a system, as specified (built into energies when the system is used).
 #[derive(Clone)]
@@ -41,6 +41,7 @@ enum Term {
         text: String,
         values: Vec<(String, ParamValue)>,
         mode: HessianMode,
+        method: Method,
     },
     Membrane {
         young: f64,
@@ -78,16 +79,17 @@ enum Term {
     },
 }
 
-/// A bending term named `name` of ψ `psi` on `rest`, its Hessian in `mode` (the refactored method).
+/// A bending term named `name` of ψ `psi` on `rest`, its Hessian in `mode`, evaluated by `method`.
 fn bending_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     name: &str,
     psi: P,
     mode: HessianMode,
+    method: Method,
 ) -> Result<Box<dyn Energy>, String> {
     let mut m = BendingModel::new(rest, psi).map_err(|e| e.to_string())?;
     m.set_hessian_mode(mode).map_err(|e| e.to_string())?;
-    Ok(Box::new(HingeTerm::new(name, m, Method::Refactored)))
+    Ok(Box::new(HingeTerm::new(name, m, method)))
 }
 
 fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
@@ -99,9 +101,10 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             text,
             values,
             mode,
+            method,
         } => match CustomPsi::new(text, values.clone())? {
-            CustomPsi::Small(p) => bending_term(rest, name, p, *mode)?,
-            CustomPsi::Large(p) => bending_term(rest, name, p, *mode)?,
+            CustomPsi::Small(p) => bending_term(rest, name, p, *mode, *method)?,
+            CustomPsi::Large(p) => bending_term(rest, name, p, *mode, *method)?,
         },
         Term::Membrane {
             young,
@@ -300,26 +303,26 @@ impl PySystem {
     }
 
     /// A hinge bending term: a built-in energy or a ψ string, with its parameters, assembling the Hessian
-    /// `hessian` names (`exact`, `gauss-newton`, `projected`).
-    #[pyo3(signature = (energy=None, psi=None, params=None, hessian="exact"))]
+    /// `hessian` names (`exact`, `gauss-newton`, `projected`) by the per-hinge `method` (`refactored`,
+    /// `per_hinge`, `autodiff`).
+    #[pyo3(signature = (energy=None, psi=None, params=None, hessian="exact", method="refactored"))]
     fn add_bending(
         &mut self,
         energy: Option<&str>,
         psi: Option<&str>,
         params: Option<&Bound<'_, PyDict>>,
         hessian: &str,
+        method: &str,
     ) -> PyResult<()> {
-        let mode = HessianMode::from_name(hessian).ok_or_else(|| {
-            value_error(format!(
-                "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
-            ))
-        })?;
+        let mode = parse_hessian(hessian)?;
+        let method = parse_method(method)?;
         let (name, text, values) = psi_spec(energy, psi, params)?;
         self.add(Term::Bending {
             name,
             text,
             values,
             mode,
+            method,
         })
     }
 

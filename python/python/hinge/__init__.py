@@ -233,14 +233,17 @@ class System:
         ``first`` (a mesh split along seams is cut there)."""
         return [tuple(p) for p in self._s.coincident_vertices]
 
-    def add_bending(self, energy=None, psi=None, hessian="exact", **params):
+    def add_bending(self, energy=None, psi=None, hessian="exact", method="refactored", **params):
         """A hinge bending term (a built-in ``energy`` or a ``psi`` string, with its parameters);
-        ``hessian`` as in ``BendingModel``: ``"exact"``, ``"gauss-newton"`` or ``"projected"``."""
+        ``hessian`` as in ``BendingModel``: ``"exact"``, ``"gauss-newton"`` or ``"projected"``; ``method``
+        as in ``BendingModel``: ``"refactored"`` (the default), ``"per_hinge"`` or ``"autodiff"``."""
         if energy is None and psi is None:
             energy = "discrete-shells"
         if not isinstance(hessian, str):
             raise ValueError(f"hessian must be a string, got {hessian!r}")
-        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, hessian)
+        if not isinstance(method, str):
+            raise ValueError(f"method must be a string, got {method!r}")
+        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, hessian, method)
         return self
 
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
