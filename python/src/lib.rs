@@ -205,12 +205,70 @@ fn param_value(name: &str, v: &Bound<'_, PyAny>) -> PyResult<ParamValue> {
 }
 
 impl Model {
+    /// Runs `f` without the GIL on the model's own pool, or as [`detached`] does.
     fn install<R: Send>(&self, py: Python<'_>, f: impl FnOnce() -> R + Send) -> R {
-        py.detach(|| match &self.pool {
-            Some(p) => p.install(f),
-            None => f(),
-        })
+        match &self.pool {
+            Some(p) => py.detach(|| p.install(f)),
+            None => detached(py, f),
+        }
     }
+}
+
+thread_local! {
+    /// The pools of the `hinge.threads(n)` contexts open on this thread, innermost last.
+    static POOLS: std::cell::RefCell<Vec<std::sync::Arc<rayon::ThreadPool>>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// A pool of `n` worker threads (1 ≤ n ≤ 1024), or `ValueError`.
+fn thread_pool(n: usize) -> PyResult<rayon::ThreadPool> {
+    if n == 0 {
+        return Err(value_error("threads must be at least 1"));
+    }
+    if n > 1024 {
+        return Err(value_error(format!("threads = {n}: at most 1024")));
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .map_err(value_error)
+}
+
+/// Runs `f` without the GIL, on the pool of the innermost `hinge.threads` context open on this thread
+/// (rayon's global pool outside any).
+pub(crate) fn detached<R: Send>(py: Python<'_>, f: impl FnOnce() -> R + Send) -> R {
+    let pool = POOLS.with(|p| p.borrow().last().cloned());
+    py.detach(move || match pool {
+        Some(p) => p.install(f),
+        None => f(),
+    })
+}
+
+/// Opens a `hinge.threads(n)` context on this thread: the calls of the package run on `n` threads until
+/// the matching [`pop_threads`].
+#[pyfunction]
+#[pyo3(name = "_push_threads")]
+fn push_threads(n: usize) -> PyResult<()> {
+    let pool = std::sync::Arc::new(thread_pool(n)?);
+    POOLS.with(|p| p.borrow_mut().push(pool));
+    Ok(())
+}
+
+/// Closes the innermost `hinge.threads` context of this thread.
+#[pyfunction]
+#[pyo3(name = "_pop_threads")]
+fn pop_threads() -> PyResult<()> {
+    POOLS
+        .with(|p| p.borrow_mut().pop())
+        .map(|_| ())
+        .ok_or_else(|| value_error("no hinge.threads context is open on this thread"))
+}
+
+/// The number of threads the package's calls from this thread run on now.
+#[pyfunction]
+#[pyo3(name = "_current_threads")]
+fn current_threads(py: Python<'_>) -> usize {
+    detached(py, rayon::current_num_threads)
 }
 
 #[pymethods]
@@ -234,21 +292,9 @@ impl Model {
         let method = parse_method(method)?;
         let mode = parse_hessian(hessian)?;
         let (label, text, values) = psi_spec(energy, psi, params)?;
-        let pool = match threads {
-            Some(0) => return Err(value_error("threads must be at least 1")),
-            Some(n) if n > 1024 => {
-                return Err(value_error(format!("threads = {n}: at most 1024")));
-            }
-            Some(n) => Some(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build()
-                    .map_err(value_error)?,
-            ),
-            None => None,
-        };
+        let pool = threads.map(thread_pool).transpose()?;
         let mesh = mesh_from(&v, &f)?;
-        let inner = py.detach(|| -> Result<Inner, String> {
+        let inner = detached(py, || -> Result<Inner, String> {
             let e = |e: hinge_core::EvalError| e.to_string();
             Ok(match CustomPsi::new(&text, values)? {
                 CustomPsi::Small(p) => Inner::Small(BendingModel::new(&mesh, p).map_err(e)?),
@@ -581,5 +627,8 @@ fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(write_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(energies, m)?)?;
+    m.add_function(wrap_pyfunction!(push_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(pop_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(current_threads, m)?)?;
     Ok(())
 }

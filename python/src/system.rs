@@ -31,7 +31,7 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::{mesh_from, parse_hessian, parse_method, psi_spec, value_error};
+use crate::{detached, mesh_from, parse_hessian, parse_method, psi_spec, value_error};
 
 /// One term of a system, as specified (built into energies when the system is used).
 #[derive(Clone)]
@@ -226,7 +226,7 @@ impl PySystem {
 
     fn ensure(&mut self, py: Python<'_>) -> PyResult<()> {
         if self.built.is_none() {
-            let s = py.detach(|| self.build()).map_err(value_error)?;
+            let s = detached(py, || self.build()).map_err(value_error)?;
             let csr = CsrLayout::new(s.pattern());
             let out = s.new_output();
             self.built = Some((s, csr, out));
@@ -540,7 +540,7 @@ impl PySystem {
             hessian,
             definite: hessian && definite,
         };
-        let r = py.detach(|| -> Result<_, String> {
+        let r = detached(py, || -> Result<_, String> {
             sys.evaluate_into(&pos, request, Parallelism::Rayon, out)
                 .map_err(|e| e.to_string())?;
             // Derivatives that overflow f64 raise, naming the term and the vertex (not NaN in the arrays).
@@ -655,7 +655,7 @@ pub fn solve_static<'py>(
     let Some((sys, _, _)) = &mut system.built else {
         return Err(value_error("system not built"));
     };
-    let r = py.detach(|| -> Result<NewtonStats, String> {
+    let r = detached(py, || -> Result<NewtonStats, String> {
         let (parameters, stages) = if membrane_continuation {
             continuation(terms, sys, rest)?
         } else {
@@ -804,7 +804,7 @@ impl PyStepper {
             &system.rest,
         )?;
         let pins = system.pins()?;
-        let sys = py.detach(|| system.build()).map_err(value_error)?;
+        let sys = detached(py, || system.build()).map_err(value_error)?;
         let masses = lumped_masses(&system.rest, density);
         let stepper = Stepper::new(&sys, dt, masses, pins, Box::new(FaerLlt::default()), params)
             .map_err(value_error)?;
@@ -827,7 +827,7 @@ impl PyStepper {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let mut guard = self.lock()?;
         let st: &mut StepState = &mut guard;
-        let r = py.detach(|| {
+        let r = detached(py, || {
             st.stepper
                 .advance(
                     &mut st.system,
@@ -899,9 +899,10 @@ pub fn run_scene<'py>(
         )));
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
-    let summary = py
-        .detach(|| hinge_cli::run::simulate(&sc, &rest, None, |_, _, _, x| xs.push(x.to_vec())))
-        .map_err(value_error)?;
+    let summary = detached(py, || {
+        hinge_cli::run::simulate(&sc, &rest, None, |_, _, _, x| xs.push(x.to_vec()))
+    })
+    .map_err(value_error)?;
     let flat: Vec<f64> = xs
         .iter()
         .flat_map(|f| f.iter().flat_map(|p| [p.x, p.y, p.z]))
@@ -952,7 +953,7 @@ pub fn adjoint_gradient<'py>(
         .collect();
     let pins = system.pins()?;
     let sys = system.system(py)?;
-    let r = py.detach(|| -> Result<Vec<(String, Vec<f64>)>, String> {
+    let r = detached(py, || -> Result<Vec<(String, Vec<f64>)>, String> {
         let mut adjoint = Adjoint::new(sys, &pins).map_err(|e| e.to_string())?;
         adjoint.factor(sys, &pos).map_err(|e| e.to_string())?;
         adjoint.solve(&dl).map_err(|e| e.to_string())?;
@@ -1061,7 +1062,7 @@ pub fn fit<'py>(
         max_iterations,
         ..FitOptions::default()
     };
-    let r = py.detach(|| -> Result<(FitResult, usize), String> {
+    let r = detached(py, || -> Result<(FitResult, usize), String> {
         let (parameters, stages) = if membrane_continuation {
             continuation(&terms, sys, &rest)?
         } else {
@@ -1150,9 +1151,10 @@ pub fn fit_scene<'py>(
         smoothness,
         ..FitOptions::default()
     };
-    let r = py
-        .detach(|| hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options, None))
-        .map_err(value_error)?;
+    let r = detached(py, || {
+        hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options, None)
+    })
+    .map_err(value_error)?;
     let names: Vec<String> = r.values.iter().map(|(k, _)| k.clone()).collect();
     let values: Vec<Vec<f64>> = r.values.iter().map(|(_, v)| v.clone()).collect();
     let info = fit_info(

@@ -113,6 +113,53 @@ def test_projected_hessian_is_the_sum_of_per_hinge_projections():
         hinge.BendingModel(V, F, hessian=1)
 
 
+def test_threads_context_sets_the_pool_of_the_calls_in_it():
+    default = hinge._hinge._current_threads()
+    V, F = sheet(5, 4, 17)
+    X = bent(V, 18)
+    s = hinge.System(V, F).add_bending(energy="tan-bending", k=0.8).add_membrane(2e5, 0.3, 5e-4)
+    m = hinge.BendingModel(V, F, energy="tan-bending", k=0.8)
+    E, g, H = s.evaluate(X)
+    Em, gm, Hm = m.evaluate(X)
+    with hinge.threads(default + 1):
+        assert hinge._hinge._current_threads() == default + 1
+        with hinge.threads(1):
+            assert hinge._hinge._current_threads() == 1
+            E1, g1, H1 = s.evaluate(X)
+            Em1, gm1, Hm1 = m.evaluate(X)
+        assert hinge._hinge._current_threads() == default + 1
+        E3, g3, H3 = s.evaluate(X)
+    assert hinge._hinge._current_threads() == default
+    # Bitwise the same results for any thread count.
+    for a, b in [(E1, E), (E3, E), (Em1, Em)]:
+        assert a == b
+    for a, b in [(g1, g), (g3, g), (gm1, gm)]:
+        assert np.array_equal(a, b)
+    for a, b in [(H1, H), (H3, H), (Hm1, Hm)]:
+        assert np.array_equal(a.toarray(), b.toarray())
+    # An exception inside the block closes the context; other threads do not see it.
+    with pytest.raises(RuntimeError):
+        with hinge.threads(2):
+            raise RuntimeError("inside")
+    assert hinge._hinge._current_threads() == default
+    import threading
+    seen = []
+    with hinge.threads(default + 1):
+        t = threading.Thread(target=lambda: seen.append(hinge._hinge._current_threads()))
+        t.start()
+        t.join()
+        assert hinge._hinge._current_threads() == default + 1
+    assert seen == [default]
+    for bad in [0, -1, 2.0, True, "2"]:
+        with pytest.raises(ValueError):
+            hinge.threads(bad)
+    with pytest.raises(ValueError, match="at most 1024"):
+        with hinge.threads(5000):
+            pass
+    with pytest.raises(ValueError, match="no hinge.threads context"):
+        hinge._hinge._pop_threads()
+
+
 def test_system_bending_methods_agree_and_each_term_is_its_model():
     # An irregular sheet, randomly numbered with rotated corners, bent and wrinkled; tan bending (built in)
     # and a psi string, each by the three per-hinge methods, beside a membrane.

@@ -23,7 +23,7 @@ import scipy.sparse as _sp
 from . import _hinge
 
 __all__ = ["BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
-           "adjoint_gradient", "fit", "fit_scene", "read_mesh", "write_mesh"]
+           "adjoint_gradient", "fit", "fit_scene", "read_mesh", "write_mesh", "threads"]
 
 
 def _vertices(V):
@@ -80,6 +80,29 @@ def write_mesh(path, V, F):
 def energies():
     """The built-in energies: a list of (name, ψ text, {parameter: default})."""
     return _hinge.energies()
+
+
+class threads:
+    """``with hinge.threads(n): ...``: the package's calls made from this thread inside the block
+    (evaluations, solves, steps, scenes, fits) run on a pool of ``n`` worker threads instead of rayon's
+    global pool (all cores). Contexts nest (the innermost wins) and apply to the thread that opened them
+    only; a ``BendingModel`` built with its own ``threads=`` keeps its pool. Results are bitwise the same
+    for any thread count."""
+
+    def __init__(self, n):
+        if isinstance(n, bool) or not isinstance(n, int):
+            raise ValueError(f"threads must be an int, got {n!r}")
+        if n < 1:
+            raise ValueError("threads must be at least 1")
+        self._n = n
+
+    def __enter__(self):
+        _hinge._push_threads(self._n)
+        return self
+
+    def __exit__(self, *exc):
+        _hinge._pop_threads()
+        return False
 
 
 class BendingModel:
