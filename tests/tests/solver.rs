@@ -1141,6 +1141,27 @@ fn membrane_continuation_of_several_membranes_scales_them_all() {
     assert_eq!(two.parameter("membrane.young").unwrap(), vec![5e9]);
 }
 
+/// Newton parameters with only a gradient tolerance (no step test) and room for 2 000 iterations.
+fn gradient_only(tolerance: f64) -> NewtonParams {
+    NewtonParams {
+        gradient_tolerance: tolerance,
+        step_tolerance: 0.0,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    }
+}
+
+/// The stiff [`thin_strip`] at the equilibrium the membrane continuation reaches at 1e-8 N.
+fn thin_strip_at_equilibrium() -> (System, Pins, Vec<Vector3<f64>>) {
+    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    let (rest, mut sys, pins) = thin_strip();
+    let scales = membrane_scales(&mut sys, &rest).unwrap();
+    let mut x = rest.positions().to_vec();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), gradient_only(1e-8)).unwrap();
+    minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).unwrap();
+    (sys, pins, x)
+}
+
 /// A gradient tolerance below what F's rounding lets the gradient reach (a stiff thin strip asked for
 /// 1e-15 N, no step test): the solve stops as stalled within a few iterations of reaching the floor instead
 /// of crawling to the iteration limit, with the caller's positions untouched; with the tolerance the strip
@@ -1148,21 +1169,9 @@ fn membrane_continuation_of_several_membranes_scales_them_all() {
 #[test]
 fn a_tolerance_below_the_rounding_floor_stalls_early() {
     use hinge_solver::newton::STALL_ITERATIONS;
-    use hinge_solver::statics::{membrane_scales, minimize_continued};
-    let (rest, mut sys, pins) = thin_strip();
-    let scales = membrane_scales(&mut sys, &rest).unwrap();
-    let params = |tolerance: f64| NewtonParams {
-        gradient_tolerance: tolerance,
-        step_tolerance: 0.0,
-        max_iterations: 2000,
-        ..NewtonParams::default()
-    };
-    // From the equilibrium the continuation reaches at 1e-8 N.
-    let mut x = rest.positions().to_vec();
-    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-8)).unwrap();
-    minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).unwrap();
+    let (mut sys, pins, mut x) = thin_strip_at_equilibrium();
     let x0 = x.clone();
-    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-15)).unwrap();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), gradient_only(1e-15)).unwrap();
     let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
     let stats = err.stats();
     println!("{err}");
@@ -1188,19 +1197,8 @@ fn a_tolerance_below_the_rounding_floor_stalls_early() {
 /// the slope test) the same solve stalled at 8.8e-10 N.
 #[test]
 fn a_tolerance_just_above_the_rounding_floor_is_reached() {
-    use hinge_solver::statics::{membrane_scales, minimize_continued};
-    let (rest, mut sys, pins) = thin_strip();
-    let scales = membrane_scales(&mut sys, &rest).unwrap();
-    let params = |tolerance: f64| NewtonParams {
-        gradient_tolerance: tolerance,
-        step_tolerance: 0.0,
-        max_iterations: 2000,
-        ..NewtonParams::default()
-    };
-    let mut x = rest.positions().to_vec();
-    let mut newton = Newton::new(&sys, &pins, default_solver(), params(1e-8)).unwrap();
-    minimize_continued(&mut newton, &mut sys, &mut x, "membrane.young", &scales).unwrap();
-    let mut newton = Newton::new(&sys, &pins, default_solver(), params(5e-10)).unwrap();
+    let (mut sys, pins, mut x) = thin_strip_at_equilibrium();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), gradient_only(5e-10)).unwrap();
     let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
     let last = stats.gradient_norms.last().copied().unwrap();
     println!("{} iterations, ‖∇E‖ {last:e}", stats.iterations);
