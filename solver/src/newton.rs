@@ -82,10 +82,9 @@
 //! [`STALL_ITERATIONS`] accepted steps in a row that are shorter than [`STALL_STEP`] of the Newton
 //! direction or lie within F's rounding (accepted within it, or full exact Newton steps predicted to change
 //! F by less than [`ROUNDING_BAND`] rounding allowances), none lowering the smallest gradient norm so far by
-//! a tenth, it
-//! fails with [`SolverError::Stalled`]. That is where a gradient tolerance lies below what rounding lets
-//! the gradient reach: a strip of Y = 5e9 Pa asked for 1e-9 N crawled at 1.2e-9 … 2.3e-9 for 2 000
-//! iterations before this rule.
+//! a tenth, it fails with [`SolverError::Stalled`]. That is where a gradient tolerance lies below what
+//! rounding lets the gradient reach: a strip of Y = 5e9 Pa asked for 1e-9 N crawled at 1.2e-9 … 2.3e-9 for
+//! 2 000 iterations before this rule.
 //!
 //! # Rounding
 //! F is a sum over many elements and terms (and the inertia energy), so its rounding error scales with
