@@ -376,16 +376,19 @@ pub fn run(args: EvalArgs) -> Result<(), String> {
         (None, Some(_)) => "custom",
         _ => return Err("eval needs one of --energy and --psi".into()),
     };
+    let names = |all: &[&str]| all.join(", ");
     let method = Method::from_name(&args.method).ok_or_else(|| {
         format!(
-            "unknown method `{}` (refactored, per_hinge, autodiff)",
-            args.method
+            "unknown method `{}` ({})",
+            args.method,
+            names(&Method::ALL.map(Method::name))
         )
     })?;
     let mode = HessianMode::from_name(&args.hessian).ok_or_else(|| {
         format!(
-            "unknown --hessian `{}` (exact, gauss-newton, projected)",
-            args.hessian
+            "unknown --hessian `{}` ({})",
+            args.hessian,
+            names(&HessianMode::ALL.map(HessianMode::name))
         )
     })?;
     let custom = match &args.psi {

@@ -540,7 +540,10 @@ fn eval_hessian_modes_write_the_models_hessians() {
         "--out",
         out,
     ]);
-    assert!(err.contains("unknown --hessian `nope`"), "{err}");
+    assert!(
+        err.contains("unknown --hessian `nope` (exact, gauss-newton, projected)"),
+        "{err}"
+    );
     let err = one_line_failure(&[
         "eval",
         "--rest",

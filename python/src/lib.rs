@@ -63,7 +63,8 @@ pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
 pub(crate) fn parse_method(method: &str) -> PyResult<Method> {
     Method::from_name(method).ok_or_else(|| {
         value_error(format!(
-            "unknown method `{method}` (refactored, per_hinge, autodiff)"
+            "unknown method `{method}` ({})",
+            Method::ALL.map(Method::name).join(", ")
         ))
     })
 }
@@ -72,7 +73,8 @@ pub(crate) fn parse_method(method: &str) -> PyResult<Method> {
 pub(crate) fn parse_hessian(hessian: &str) -> PyResult<HessianMode> {
     HessianMode::from_name(hessian).ok_or_else(|| {
         value_error(format!(
-            "unknown hessian `{hessian}` (exact, gauss-newton, projected)"
+            "unknown hessian `{hessian}` ({})",
+            HessianMode::ALL.map(HessianMode::name).join(", ")
         ))
     })
 }
