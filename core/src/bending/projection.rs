@@ -13,6 +13,15 @@
 //!   time, and the transpositions connect all eight roots: the monodromy group is the full symmetric group
 //!   S₈, which is not solvable. So no formula in radicals gives the eigenvalues as functions of `ψ″/ψ′`,
 //!   and since a ψ from the derive can make that ratio anything, no closed form covers the family.
+//! - Not even `Hess θ` alone (the whole Hessian of a ψ linear in θ, and what a rank-one secular-equation
+//!   update of a closed form would have to start from) has eigenvalues in closed form: at stencils with
+//!   rational coordinates and a hinge edge of rational length along an axis, its eight non-zero
+//!   eigenvalues are the roots of an octic with rational coefficients, irreducible over ℚ and over ℚ with
+//!   the normals' square roots adjoined, whose factorization patterns modulo primes contain a 7-cycle and
+//!   a transposition (Dedekind): its Galois group is S₈, so the roots are not expressible in radicals of
+//!   the coordinates (exact rational arithmetic, `docs/projection/galois.py`, output in
+//!   `docs/projection/galois.txt`: five stencils, S₈ at each). An "analytic eigensystem" of the dihedral
+//!   angle's Hessian can therefore only be one of an approximation of it.
 //! - Projecting the two terms separately (`max(ψ″, 0) ∇θ∇θᵀ` plus the projection of `ψ′ Hess θ`, which is
 //!   what a per-term analytic eigensystem gives) is PSD but not the nearest PSD matrix: it differs from the
 //!   exact projection by far more than 1e-10 (test `termwise_projection_is_not_the_projection`).
