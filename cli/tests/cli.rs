@@ -1406,6 +1406,16 @@ fn eval_psi_matches_the_builtin_and_reports_errors() {
             ],
             "cannot be used with",
         ),
+        // Finite per hinge, not in total (before: `"energy": inf` on stdout and exit code 0).
+        (
+            vec!["--psi", "k * 1e308", "--param", "k=1.5"],
+            "custom: its energy is not finite (inf)",
+        ),
+        // ψ″ = 2e306 is finite; ψ″ ∇θ∇θᵀ on the 80×80 grid is not.
+        (
+            vec!["--psi", "k * theta.powi(2)", "--param", "k=1e306"],
+            "its Hessian is not finite here",
+        ),
     ] {
         let mut all = vec!["eval", "--rest", &rest, "--out", a.to_str().unwrap()];
         all.extend(args.iter());
@@ -1413,6 +1423,8 @@ fn eval_psi_matches_the_builtin_and_reports_errors() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(!o.status.success(), "{args:?}");
         assert!(err.contains(want), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?}");
     }
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -884,14 +884,16 @@ impl System {
             *sec += start.elapsed().as_secs_f64();
             out.energy += *e;
         }
-        Ok(())
+        self.check_finite(x, request, par, out)
     }
 
     /// Checks an evaluation of this system at `x` (`out`, as [`System::evaluate_into`] left it for
-    /// `request`): its energy, gradient and Hessian must be finite. The check is a pass over the outputs;
-    /// only when it fails are the terms evaluated again one at a time, to name the first whose own output
-    /// is not finite and the vertex of its first non-finite entry. Newton runs it after every evaluation with
-    /// derivatives (an energy's stiffness or a load can overflow f64 where each input is finite).
+    /// `request`): its energy, gradient and Hessian must be finite. The check is a pass over the outputs
+    /// (integer operations on the exponent bits, which vectorize); only when it fails are the terms
+    /// evaluated again one at a time, to name the first whose own output is not finite and the vertex of
+    /// its first non-finite entry. [`System::evaluate_into`] and [`System::evaluate`] end with it, so no evaluation
+    /// returns a NaN or an infinity (an energy's stiffness or a load can overflow f64 where each input is
+    /// finite); it is public for outputs assembled otherwise.
     ///
     /// # Errors
     /// [`EvalError::AtElement`] naming the term and the vertex; [`EvalError::NonFiniteTotal`] when no
@@ -903,11 +905,9 @@ impl System {
         par: Parallelism,
         out: &SystemEvaluation,
     ) -> Result<(), EvalError> {
-        // v · 0 is 0 for every finite v and NaN otherwise: one multiply-add per value, no branch.
-        let finite = |v: &[f64]| v.iter().fold(0.0, |a, &b| a + b * 0.0) == 0.0;
         let value = !request.value || out.energy.is_finite();
-        let gradient = !request.gradient || finite(&out.gradient);
-        let hessian = !request.hessian || finite(&out.hessian);
+        let gradient = !request.gradient || all_finite(&out.gradient);
+        let hessian = !request.hessian || all_finite(&out.hessian);
         if value && gradient && hessian {
             return Ok(());
         }
@@ -1034,5 +1034,58 @@ impl System {
         let mut out = self.new_output();
         self.evaluate_into(x, request, par, &mut out)?;
         Ok(out)
+    }
+}
+
+/// Whether every value is finite. A value is NaN or infinite exactly when its exponent bits are all ones;
+/// adding one to that field then carries into the sign bit, so OR-ing `(bits & EXP) + (1 << 52)` over the
+/// slice and testing the sign bit decides it with integer operations only, which vectorize (a float
+/// reduction such as `Σ v·0` is one dependent add per value).
+pub(crate) fn all_finite(values: &[f64]) -> bool {
+    const EXP: u64 = 0x7ff0_0000_0000_0000;
+    let carry = values
+        .iter()
+        .fold(0u64, |acc, v| acc | ((v.to_bits() & EXP) + (1 << 52)));
+    carry & (1 << 63) == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::all_finite;
+
+    #[test]
+    fn all_finite_finds_every_non_finite_value_and_accepts_every_finite_one() {
+        let finite = [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            f64::MAX,
+            f64::MIN,
+            f64::MIN_POSITIVE,
+            f64::MIN_POSITIVE / 4.0, // subnormal
+            -f64::from_bits(1),
+            f64::EPSILON,
+        ];
+        assert!(all_finite(&finite));
+        assert!(all_finite(&[]));
+        let bad = [
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -f64::NAN,
+            f64::from_bits(0x7ff0_0000_0000_0001), // signalling NaN payload
+            f64::from_bits(0xfff8_dead_beef_0000),
+        ];
+        for len in 1..=17 {
+            for at in 0..len {
+                for &b in &bad {
+                    let mut v: Vec<f64> = (0..len).map(|k| finite[k % finite.len()]).collect();
+                    v[at] = b;
+                    assert!(!all_finite(&v), "{b:e} at {at} of {len}");
+                    assert_eq!(all_finite(&v), v.iter().all(|x| x.is_finite()));
+                }
+            }
+        }
     }
 }

@@ -691,6 +691,26 @@ def test_derivatives_that_overflow_raise_naming_the_term_and_vertex():
         hinge.solve_static(s, X)
 
 
+def test_a_bending_model_whose_outputs_overflow_raises_instead_of_returning_inf():
+    # Every hinge's psi, psi', psi'' is finite; their products with grad(theta), Hess(theta) and the sum over
+    # hinges are not. Before, BendingModel.evaluate returned inf and NaN in its arrays.
+    V, F = sheet(5, 4, 3, jitter=0.05)
+    X = V.copy()
+    X[:, 2] = 0.3 * np.sin(4 * V[:, 0]) * V[:, 1]
+    big = hinge.BendingModel(V, F, psi="k * theta.powi(2)", k=1.5e307)
+    with pytest.raises(ValueError, match=r"bending, vertex \d+: its gradient is not finite here"):
+        big.evaluate(X)
+    total = hinge.BendingModel(V, F, psi="k * 1e308", k=1.5)
+    with pytest.raises(ValueError, match="bending: every hinge's energy is finite, their sum is not"):
+        total.evaluate(X)
+    # The same energies as a system's term: the system names the term (the check that was there before).
+    for psi, k, what in (("k * theta.powi(2)", 1.5e307, "gradient"), ("k * 1e308", 1.5, "energy")):
+        with pytest.raises(ValueError, match=f"its {what} is not finite"):
+            hinge.System(V, F).add_bending(psi=psi, k=k).evaluate(X)
+    E, g, H = hinge.BendingModel(V, F, psi="k * theta.powi(2)", k=1e300).evaluate(X)
+    assert np.isfinite(E) and np.isfinite(g).all() and np.isfinite(H.data).all()
+
+
 def test_a_mesh_split_along_a_seam_warns_and_is_cut_there():
     V, F = sheet(6, 5, 8, jitter=0.05)
     right = V[F].mean(axis=1)[:, 0] > 0.5

@@ -154,13 +154,9 @@ impl Objective for System {
         request: Request,
         out: &mut SystemEvaluation,
     ) -> Result<(), EvalError> {
-        self.evaluate_into(x, request, Parallelism::Rayon, out)?;
-        // Derivatives that overflowed would reach the factorization as a failed pivot or a NaN step: name
-        // the term and the vertex instead (a pass over the outputs, cheap next to a factorization).
-        if request.gradient || request.hessian {
-            self.check_finite(x, request, Parallelism::Rayon, out)?;
-        }
-        Ok(())
+        // Derivatives that overflowed would reach the factorization as a failed pivot or a NaN step: the
+        // evaluation names the term and the vertex instead (`System::check_finite`).
+        self.evaluate_into(x, request, Parallelism::Rayon, out)
     }
     fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
         System::max_step(self, from, to)

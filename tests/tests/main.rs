@@ -15,6 +15,7 @@ mod macro_psi;
 mod mesh_files;
 mod moving_obstacles;
 mod plasticity;
+mod psi_fuzz;
 mod public_api;
 mod runtime_psi;
 mod solver;

@@ -1558,13 +1558,15 @@ fn a_step_whose_prediction_cannot_be_evaluated_starts_from_the_last_state() {
 }
 
 /// A membrane whose Young's modulus is finite but whose Hessian overflows f64 (1e308 Pa on an irregular,
-/// renumbered sheet): `System::evaluate` returns the non-finite values as they are; `check_finite` names
-/// the membrane (the second term: the bending before it is finite) and a vertex whose Hessian row holds a
-/// non-finite value; Newton fails with that error before any factorization (before, it reached the
+/// renumbered sheet): `System::evaluate` fails instead of returning the non-finite values, naming the
+/// membrane (the second term: the bending before it is finite) and a vertex whose Hessian row holds a
+/// non-finite value (checked against the membrane's own output, assembled by hand); `check_finite` says
+/// the same of that output; Newton fails with that error before any factorization (before, it reached the
 /// factorization and reported "linear solve failed (shift inf)").
 #[test]
 fn derivatives_that_overflow_are_named_by_term_and_vertex() {
     use hinge_core::EvalError;
+    use hinge_core::energy::{Accumulator, SystemEvaluation};
     use hinge_core::error::ElementRef;
     use hinge_energies::membrane::StvkMembrane;
     let rest = hinge_core::shapes::irregular_sheet(8, 7, 12).unwrap();
@@ -1581,7 +1583,7 @@ fn derivatives_that_overflow_are_named_by_term_and_vertex() {
         ];
         System::new(rest.n_vertices(), terms).unwrap()
     };
-    // Finite: the check passes.
+    // Finite: the evaluation succeeds.
     let mut fine = system(1e305);
     let out = fine
         .evaluate(&x, Request::ALL, Parallelism::Sequential)
@@ -1590,15 +1592,8 @@ fn derivatives_that_overflow_are_named_by_term_and_vertex() {
     fine.check_finite(&x, Request::ALL, Parallelism::Sequential, &out)
         .unwrap();
     let mut sys = system(1e308);
-    let out = sys
-        .evaluate(&x, Request::ALL, Parallelism::Sequential)
-        .unwrap();
-    assert!(
-        out.hessian.iter().any(|v| !v.is_finite()),
-        "the overflow this test needs"
-    );
     let e = sys
-        .check_finite(&x, Request::ALL, Parallelism::Sequential, &out)
+        .evaluate(&x, Request::ALL, Parallelism::Sequential)
         .unwrap_err();
     let EvalError::AtElement {
         energy,
@@ -1609,8 +1604,31 @@ fn derivatives_that_overflow_are_named_by_term_and_vertex() {
         panic!("{e}");
     };
     assert_eq!(energy, "membrane", "{e}");
+    // The membrane's own output at the system's pattern, assembled outside the system.
+    let pattern = std::sync::Arc::new(sys.pattern().clone());
+    let mut membrane = StvkMembrane::new(&rest, 1e308, 0.3, 5e-4).unwrap();
+    membrane.bind(&pattern).unwrap();
+    let mut out = SystemEvaluation {
+        energy: 0.0,
+        terms: vec![0.0; 2],
+        gradient: vec![0.0; 3 * rest.n_vertices()],
+        hessian: vec![0.0; pattern.nnz()],
+    };
+    let mut acc = Accumulator::of(&pattern, Request::ALL, &mut out.gradient, &mut out.hessian);
+    out.energy = membrane
+        .add_to(&x, Request::ALL, Parallelism::Sequential, &mut acc)
+        .unwrap();
+    assert!(
+        out.hessian.iter().any(|v| !v.is_finite()),
+        "the overflow this test needs"
+    );
+    assert_eq!(
+        sys.check_finite(&x, Request::ALL, Parallelism::Sequential, &out)
+            .unwrap_err(),
+        e
+    );
     // The named vertex is one of the two of a non-finite stored value (column by column through the CSC).
-    let p = sys.pattern();
+    let p = &*pattern;
     let (cp, ri) = (p.col_ptr(), p.row_idx());
     let touches = (0..p.dim()).any(|j| {
         (cp[j]..cp[j + 1]).any(|k| {

@@ -787,6 +787,16 @@ impl<P: HingePsi> BendingModel<P> {
             &mut scratch.sums,
         )?;
         let e = if request.value { e } else { 0.0 };
+        if !accumulate && !e.is_finite() {
+            // Every hinge's ψ is finite (the pass checked): their sum overflowed. (Summed into a system,
+            // `System::check_finite` decides for the total.)
+            return Err(EvalError::NonFiniteTotal {
+                energy: "bending".into(),
+                message: format!(
+                    "every hinge's energy is finite, their sum is not ({e}): it overflows f64"
+                ),
+            });
+        }
         *energy = if accumulate { *energy + e } else { e };
         if !(request.gradient || request.hessian) {
             return Ok(());

@@ -3,7 +3,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::error::EvalError;
+use crate::energy::all_finite;
+use crate::error::{ElementRef, EvalError};
 use crate::psi::HingePsi;
 
 use super::hinge_pass::HingeState;
@@ -265,10 +266,61 @@ impl<P: HingePsi> Ctx<'_, P> {
                 }
             }
         }
+        if first.is_none() && !self.local_only && !self.accumulate {
+            first = self.non_finite(p, own.grad, own.hess);
+        }
         match first {
             Some(e) => Err(e),
             None => Ok(own.checksum),
         }
+    }
+
+    /// A non-finite entry among what partition `p` wrote (`grad`: its gradient entries in storage order,
+    /// `hess`: its Hessian values; either may be empty). Every hinge's ψ, ψ′ and ψ″ is finite by now (the
+    /// hinge pass checked), but their products with ∇θ and Hess θ, and the sums over hinges, can still
+    /// overflow f64 (a stiffness of 1e306 at a bent hinge). Named by the lowest caller vertex with a
+    /// non-finite gradient entry, else by the lowest caller vertex whose Hessian row (lower triangle) has
+    /// one; keyed after every element error (those name hinges or triangles, keys below 2³¹), so the error
+    /// reported does not depend on how the partitions were split over threads.
+    fn non_finite(&self, p: &Partition, grad: &[f64], hess: &[f64]) -> Option<(u32, EvalError)> {
+        let pattern = &*self.model.pattern;
+        let worst = |what: &str, found: Option<(usize, f64)>| {
+            found.map(|(vertex, value)| {
+                let key = (1u32 << 31) | u32::try_from(vertex).map_or(u32::MAX >> 1, |v| v.min(u32::MAX >> 1));
+                let err = EvalError::AtElement {
+                    energy: "bending".into(),
+                    element: ElementRef::Vertex(vertex),
+                    message: format!(
+                        "its {what} is not finite here ({value}) although every hinge's ψ, ψ′ and ψ″ is: the energy's scale overflows f64 in the derivatives"
+                    ),
+                };
+                (key, err)
+            })
+        };
+        if !all_finite(grad) {
+            let found = grad
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| !v.is_finite())
+                .map(|(k, &v)| (pattern.order()[p.vertices.start + k / 3] as usize, v))
+                .min_by_key(|&(vertex, _)| vertex);
+            return worst("gradient", found);
+        }
+        if !all_finite(hess) {
+            let found = hess
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| !v.is_finite())
+                .map(|(k, &v)| {
+                    (
+                        pattern.caller_dof(pattern.row_idx()[p.values.start + k]) / 3,
+                        v,
+                    )
+                })
+                .min_by_key(|&(vertex, _)| vertex);
+            return worst("Hessian", found);
+        }
+        None
     }
 
     /// Benchmark mode over every partition, sequentially; the gradient goes to `grad` (storage order).
