@@ -138,7 +138,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) if message == INTERRUPTED => {
             eprintln!(
-                "hinge: interrupted (Ctrl-C) after a completed frame; summary.json is marked interrupted"
+                "hinge: interrupted (Ctrl-C); frames completed before it are written, a static solve writes nothing; summary.json is marked interrupted"
             );
             ExitCode::from(130)
         }

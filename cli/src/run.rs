@@ -7,6 +7,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, LazyLock};
 use std::time::Instant;
 
 use clap::Args;
@@ -15,6 +16,7 @@ use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::Plasticity;
 use hinge_core::energy::{Energy, HingeTerm, System};
+use hinge_core::error::Num;
 use hinge_core::meshio::{FileNumbering, MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
@@ -185,6 +187,19 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     } else {
         stiffness_from_material(m.young, m.thickness, m.poisson)
     };
+    // Each value may be in range while the stiffnesses they make (∝ Y·h³ and Y·h) underflow to zero or
+    // to subnormals, or overflow: a shell without stiffness, not a scene to run.
+    let membrane = m.young * m.thickness / (1.0 - m.poisson * m.poisson);
+    for (what, v) in [("bending stiffness", k), ("membrane stiffness", membrane)] {
+        if !(v.is_normal() && v > 0.0) {
+            return Err(format!(
+                "material: young {} and thickness {} make a {what} of {}, outside the positive normal f64 range",
+                Num(m.young),
+                Num(m.thickness),
+                Num(v)
+            ));
+        }
+    }
     let kd = if damped { scene.bending.damping } else { 0.0 };
     let factors = anisotropy_factors(scene, rest)?;
     let rest_angles = match &scene.bending.rest_angles {
@@ -361,11 +376,30 @@ pub fn membrane_stages(
     membrane_scales(system, rest).map(|s| ("membrane.young", s))
 }
 
+/// The one-line message of a static solve that failed: the solver's, with a hint when nothing can hold the
+/// mesh still (`unsupported`: no pins, non-zero gravity) and the failure is one that explains.
+fn static_failure(e: &SolverError, unsupported: bool, names: Option<&FileNumbering>) -> String {
+    let hint = if unsupported
+        && matches!(
+            e,
+            SolverError::NotConverged { .. }
+                | SolverError::LineSearch { .. }
+                | SolverError::Stalled { .. }
+        ) {
+        "; no vertex is pinned, so under gravity the mesh rests only where obstacles hold it \
+         still (frictionless contact cannot hold it on a curved obstacle's side: it slides off)"
+    } else {
+        ""
+    };
+    format!("static solve: {}{hint}", solver_message(e, names))
+}
+
 /// Solves `scene` for its static equilibrium from the rest state (no inertia, no damping); writes
 /// `static.obj` (or the output's format) and, when asked, its pictures to `out` when given.
 ///
 /// With `names` (the rest mesh file's numbering), an evaluation error names its vertices and faces as the
-/// file counts them.
+/// file counts them. When `stop` is raised during the solve (Ctrl-C), the solve ends before its next Newton
+/// iteration and the summary, marked [`RunSummary::interrupted`], counts the work done; nothing is written.
 ///
 /// # Errors
 /// A one-line message with the solver's diagnostics.
@@ -373,6 +407,7 @@ pub fn equilibrium(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
+    stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
 ) -> Result<RunSummary, String> {
     let start = Instant::now();
@@ -391,28 +426,19 @@ pub fn equilibrium(
         ..params
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
+    newton.set_stop(stop.cloned());
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
     let (parameter, stages) = membrane_stages(scene, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
-    let stats = minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages).map_err(
-        |e| {
-            let hint = if unsupported
-                && matches!(
-                    e,
-                    SolverError::NotConverged { .. }
-                        | SolverError::LineSearch { .. }
-                        | SolverError::Stalled { .. }
-                ) {
-                "; no vertex is pinned, so under gravity the mesh rests only where obstacles hold it \
-                 still (frictionless contact cannot hold it on a curved obstacle's side: it slides off)"
-            } else {
-                ""
-            };
-            format!("static solve: {}{hint}", solver_message(&e, names))
-        },
-    )?;
+    let (stats, interrupted) =
+        match minimize_continued(&mut newton, &mut system, &mut x, parameter, &stages) {
+            Ok(stats) => (stats, false),
+            // Stopped on request: the summary says so, and no equilibrium is written (`x` is the start).
+            Err(SolverError::Interrupted { stats }) => (*stats, true),
+            Err(e) => return Err(static_failure(&e, unsupported, names)),
+        };
     let mut summary = RunSummary {
         frames: 0,
         newton_iterations: stats.iterations,
@@ -431,11 +457,11 @@ pub fn equilibrium(
         substeps: 0,
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
-        interrupted: false,
+        interrupted,
         max_plastic_angle: None,
     };
     summary.add_timings(&mut system);
-    if let Some(o) = out {
+    if let Some(o) = out.filter(|_| !interrupted) {
         let name = format!("static.{}", o.format.extension());
         write_mesh(o.dir.join(name), &x, rest.triangles()).map_err(|e| e.to_string())?;
         if o.pictures {
@@ -676,8 +702,10 @@ pub fn solver_message(e: &SolverError, names: Option<&FileNumbering>) -> String 
     }
 }
 
-/// [`simulate`] with the output's format chosen, stopping after the first frame that ends with `stop`
-/// set (the summary is then marked [`RunSummary::interrupted`] and counts the frames completed); with
+/// [`simulate`] with the output's format chosen, stopping when `stop` is raised: after the current frame, or,
+/// for implicit Euler, within it (its Newton solver checks the flag before every iteration; the frame is
+/// then abandoned, the state is that of the last completed frame). The summary is then marked
+/// [`RunSummary::interrupted`] and counts the frames completed; with
 /// `names` (the rest mesh file's numbering), a step's evaluation error names its vertices and faces as the
 /// file counts them.
 ///
@@ -687,7 +715,7 @@ pub fn simulate_until(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
-    stop: Option<&AtomicBool>,
+    stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
@@ -729,17 +757,17 @@ pub fn simulate_until(
                 .map_err(|e| e.to_string())?,
             )
         } else {
-            Stepper::Implicit(Box::new(
-                ImplicitEuler::new(
-                    system,
-                    scene.dt,
-                    masses.clone(),
-                    pins,
-                    solver,
-                    params.clone(),
-                )
-                .map_err(|e| e.to_string())?,
-            ))
+            let mut stepper = ImplicitEuler::new(
+                system,
+                scene.dt,
+                masses.clone(),
+                pins,
+                solver,
+                params.clone(),
+            )
+            .map_err(|e| e.to_string())?;
+            stepper.newton_mut().set_stop(stop.cloned());
+            Stepper::Implicit(Box::new(stepper))
         })
     };
     drop(pins);
@@ -833,9 +861,24 @@ pub fn simulate_until(
         };
         let motion: Option<&dyn PinMotion> = (!groups.is_empty()).then_some(&targets);
         let fs = match &mut stepper {
-            Stepper::Implicit(s) => s
-                .advance_with(&mut system, &mut x, &mut v, policy, motion)
-                .map_err(|e| {
+            Stepper::Implicit(s) => match s.advance_with(
+                &mut system,
+                &mut x,
+                &mut v,
+                policy,
+                motion,
+            ) {
+                // Stopped within the frame: `x`, `v` and the system are the last completed frame's.
+                Err(SolverError::Interrupted { .. }) => {
+                    summary.frames = frame;
+                    summary.interrupted = true;
+                    if !frame.is_multiple_of(every) {
+                        // The animation ends on the last frame done (rewritten: the same positions).
+                        write_frame(frame, &x, true)?;
+                    }
+                    break;
+                }
+                r => r.map_err(|e| {
                     format!(
                         "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed)",
                         frame + 1,
@@ -843,6 +886,7 @@ pub fn simulate_until(
                         1u64 << policy.max_halvings.min(30)
                     )
                 })?,
+            },
             Stepper::Explicit(s) => s
                 .advance_with(&mut system, &mut x, &mut v, motion)
                 .map_err(|e| {
@@ -927,15 +971,17 @@ enum Stepper {
 pub enum Completion {
     /// Every frame (or the static solve) was done.
     Finished,
-    /// Ctrl-C stopped the run after a frame; `summary.json` says `"interrupted": true`.
+    /// Ctrl-C stopped the run (dynamics: the frames completed are written; statics: no equilibrium);
+    /// `summary.json` says `"interrupted": true`.
     Interrupted,
 }
 
-/// Set by the Ctrl-C handler: the frame loop stops after the current frame.
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+/// Set by the Ctrl-C handler: the run stops before its next Newton iteration (or after the current frame
+/// of an explicit integrator).
+static INTERRUPTED: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
 
-/// Installs the Ctrl-C handler (once per process): the first Ctrl-C asks the run to stop after the current
-/// frame, a second one exits at once with code 130.
+/// Installs the Ctrl-C handler (once per process): the first Ctrl-C asks the run to stop (dynamics: the
+/// frames completed are kept; statics: nothing is written), a second one exits at once with code 130.
 fn install_interrupt_handler() {
     // `set_handler` also replaces an inherited "ignore" (a shell starts background jobs of scripts with
     // SIGINT ignored): an explicit `kill -INT` then still ends the run cleanly. An error means this process
@@ -998,8 +1044,10 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         .map_err(|e| e.to_string())?;
     let what = if args.statics {
         "static equilibrium (Newton on the potential energy)".to_string()
-    } else {
+    } else if (1e-3..1e5).contains(&scene.dt) {
         format!("{} frames of {:.4} s", scene.frames, scene.dt)
+    } else {
+        format!("{} frames of {} s", scene.frames, Num(scene.dt))
     };
     println!(
         "hinge run {}: {} vertices, {} triangles, {what}, {threads} threads → {}",
@@ -1015,14 +1063,14 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     });
     let frames = scene.frames;
     let summary = if args.statics {
-        pool.install(|| equilibrium(&scene, &rest, frames_dir, names))?
+        pool.install(|| equilibrium(&scene, &rest, frames_dir, Some(&*INTERRUPTED), names))?
     } else {
         pool.install(|| {
             simulate_until(
                 &scene,
                 &rest,
                 frames_dir,
-                Some(&INTERRUPTED),
+                Some(&*INTERRUPTED),
                 names,
                 |frame, fs, seconds, _| {
                     println!(
@@ -1069,7 +1117,9 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?,
     )
     .map_err(|e| format!("{}: {e}", path.display()))?;
-    let done = if args.statics {
+    let done = if args.statics && summary.interrupted {
+        "static solve interrupted (no equilibrium written)".to_string()
+    } else if args.statics {
         "static equilibrium".to_string()
     } else if summary.interrupted {
         format!("interrupted after {} of {frames} frames", summary.frames)
@@ -1206,7 +1256,7 @@ mod tests {
             scene.material.membrane = membrane.into();
             scene.solver.membrane_continuation = on;
             let rest = scene.rest_mesh(None).unwrap();
-            let s = equilibrium(&scene, &rest, None, None).unwrap();
+            let s = equilibrium(&scene, &rest, None, None, None).unwrap();
             assert!(
                 s.final_gradient_norm <= 1e-9,
                 "{on}: {}",

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use hinge_core::TriMesh;
 use hinge_core::anisotropy::TriangleUv;
+use hinge_core::error::Num;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
@@ -565,7 +566,10 @@ fn positive(name: &str, v: f64) -> Result<(), String> {
     if v > 0.0 && v.is_finite() {
         Ok(())
     } else {
-        Err(format!("{name}: must be positive and finite, got {v}"))
+        Err(format!(
+            "{name}: must be positive and finite, got {}",
+            Num(v)
+        ))
     }
 }
 
@@ -625,7 +629,10 @@ impl Scene {
     fn validate(&self) -> Result<(), String> {
         positive("dt", self.dt)?;
         if !(self.drag >= 0.0 && self.drag.is_finite()) {
-            return Err(format!("drag: must be non-negative, got {}", self.drag));
+            return Err(format!(
+                "drag: must be non-negative, got {}",
+                Num(self.drag)
+            ));
         }
         positive("material.young", self.material.young)?;
         positive("material.thickness", self.material.thickness)?;
@@ -633,13 +640,13 @@ impl Scene {
         if !(self.material.poisson > -1.0 && self.material.poisson < 0.5) {
             return Err(format!(
                 "material.poisson: must lie in (-1, 0.5), got {}",
-                self.material.poisson
+                Num(self.material.poisson)
             ));
         }
         if !(self.bending.damping >= 0.0 && self.bending.damping.is_finite()) {
             return Err(format!(
                 "bending.damping: must be non-negative, got {}",
-                self.bending.damping
+                Num(self.bending.damping)
             ));
         }
         if !["implicit-euler", "symplectic-euler"].contains(&self.solver.integrator.as_str()) {
@@ -658,7 +665,8 @@ impl Scene {
             for (key, v) in [("yield_angle", p.yield_angle), ("hardening", p.hardening)] {
                 if !(v >= 0.0 && v.is_finite()) {
                     return Err(format!(
-                        "bending.plasticity.{key}: must be non-negative and finite, got {v}"
+                        "bending.plasticity.{key}: must be non-negative and finite, got {}",
+                        Num(v)
                     ));
                 }
             }
@@ -1071,7 +1079,11 @@ fn pin_group(i: usize, g: &PinGroupSpec, rest: &TriMesh) -> Result<PinGroup, Str
     if let Some(r) = g.release
         && !(r >= 0.0 && r.is_finite())
     {
-        return Err(format!("{}: must be non-negative, got {r}", key("release")));
+        return Err(format!(
+            "{}: must be non-negative, got {}",
+            key("release"),
+            Num(r)
+        ));
     }
     let motion = motion(&format!("pins.groups[{i}]"), &g.motion)?;
     Ok(PinGroup {

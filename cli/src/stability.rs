@@ -236,7 +236,7 @@ fn stiff_beams(quick: bool) -> Result<Vec<Value>, String> {
             let rest = scene.rest_mesh(None)?;
             let name = format!("stiff beam: Y = {y:e} Pa, h = {h:e} m");
             let (length, plate) = plate_tip_deflection(&scene)?;
-            match crate::run::equilibrium(&scene, &rest, None, None) {
+            match crate::run::equilibrium(&scene, &rest, None, None, None) {
                 Ok(s) => {
                     // Newton stopped on its own tests (gradient or step tolerance): converged.
                     let converged = s.final_gradient_norm.is_finite();

@@ -1511,6 +1511,142 @@ fn custom_psi_scenes_run_like_the_builtin() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// Sends SIGINT to `child`: `kill -INT`, or Python's os.kill where no `kill` program is installed (a fresh
+/// machine has Python).
+fn interrupt(child: &std::process::Child) {
+    let pid = child.id().to_string();
+    let killed = Command::new("kill")
+        .args(["-INT", &pid])
+        .status()
+        .or_else(|_| {
+            Command::new("python3")
+                .args([
+                    "-c",
+                    "import os, signal, sys; os.kill(int(sys.argv[1]), signal.SIGINT)",
+                    &pid,
+                ])
+                .status()
+        })
+        .unwrap();
+    assert!(killed.success());
+}
+
+/// Ctrl-C during a long static solve (the soft shell on the plane takes minutes to converge) ends it
+/// within a Newton iteration: one line, exit code 130, `summary.json` marked interrupted with the work
+/// done, no `static.obj`. Before, the handler swallowed the signal and the solve ran on to its end.
+#[test]
+fn ctrl_c_stops_a_static_solve_between_newton_iterations() {
+    use std::io::BufRead;
+    let dir = tmp("static_interrupt");
+    let out = dir.join("out");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hinge"))
+        .args(["run", "shell-drop", "--static", "--out"])
+        .arg(&out)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    // The header is printed once the solve starts.
+    let header = lines.next().unwrap().unwrap();
+    assert!(header.contains("static equilibrium"), "{header}");
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let t = std::time::Instant::now();
+    interrupt(&child);
+    let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
+    let status = child.wait().unwrap();
+    // One Newton iteration of this scene takes well under a second; allow for a slow machine.
+    assert!(t.elapsed().as_secs() < 30, "{:?}", t.elapsed());
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["interrupted"], true);
+    assert_eq!(summary["static"], true);
+    assert!(summary["newton_iterations"].as_u64().unwrap() >= 1);
+    assert!(!out.join("static.obj").exists());
+    assert!(
+        rest.iter()
+            .any(|l| l.starts_with("done: static solve interrupted")),
+        "{rest:?}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Scene values at the edges of their types: an iteration budget of 2³² runs like any other (it once
+/// aborted the process reserving 32 GiB for the iteration history), and values far outside their range are
+/// named in short scientific notation, not hundreds of digits; values each in range whose product (the
+/// stiffnesses, ∝ Y·h³) underflows or overflows are refused, naming what they make.
+#[test]
+fn extreme_scene_values_run_or_fail_in_one_short_line() {
+    let dir = tmp("extreme_values");
+    let budget = scene_variant(
+        &dir,
+        "budget.toml",
+        "drape",
+        &[("max_iterations = 300", "max_iterations = 4294967296")],
+    );
+    let out = dir.join("out");
+    let o = hinge(&[
+        "run",
+        budget.to_str().unwrap(),
+        "--resolution",
+        "6",
+        "--frames",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (from, to, shown) in [
+        ("young = 2e5", "young = -1e308", "got -1e308"),
+        (
+            "poisson = 0.3",
+            "poisson = 18446744073709551616.0",
+            "got 1.8446744073709552e19",
+        ),
+        (
+            "thickness = 5e-4",
+            "thickness = 1e-320",
+            "thickness 1e-320 make a bending stiffness of 0",
+        ),
+        (
+            "thickness = 5e-4",
+            "thickness = 1e120",
+            "thickness 1e120 make a bending stiffness of inf",
+        ),
+    ] {
+        let path = scene_variant(&dir, "bad.toml", "drape", &[(from, to)]);
+        let line = one_line_failure(&["run", path.to_str().unwrap(), "--frames", "1"]);
+        assert!(line.len() < 200 && line.contains(shown), "{line}");
+    }
+    // An absurd time step is printed readably in the run's first line.
+    let path = scene_variant(
+        &dir,
+        "dt.toml",
+        "drape",
+        &[("dt = 0.016666666666666666", "dt = 1e20")],
+    );
+    let o = hinge(&[
+        "run",
+        path.to_str().unwrap(),
+        "--resolution",
+        "2",
+        "--frames",
+        "1",
+        "--no-frames",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("1 frames of 1e20 s"), "{stdout}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn thread_and_frame_limits_and_interrupts() {
     let dir = tmp("limits");
@@ -1587,22 +1723,7 @@ fn thread_and_frame_limits_and_interrupts() {
             break;
         }
     }
-    // `kill -INT`, or Python's os.kill where no `kill` program is installed (a fresh machine has Python).
-    let pid = child.id().to_string();
-    let killed = Command::new("kill")
-        .args(["-INT", &pid])
-        .status()
-        .or_else(|_| {
-            Command::new("python3")
-                .args([
-                    "-c",
-                    "import os, signal, sys; os.kill(int(sys.argv[1]), signal.SIGINT)",
-                    &pid,
-                ])
-                .status()
-        })
-        .unwrap();
-    assert!(killed.success());
+    interrupt(&child);
     let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
     let status = child.wait().unwrap();
     let mut err = String::new();

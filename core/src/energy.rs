@@ -382,7 +382,10 @@ impl<P: HingePsi> HingeTerm<P> {
             if !(v >= 0.0 && v.is_finite()) {
                 return Err(EvalError::Psi(crate::psi::PsiError {
                     name: name.into(),
-                    message: format!("must be non-negative and finite, got {v}"),
+                    message: format!(
+                        "must be non-negative and finite, got {}",
+                        crate::error::Num(v)
+                    ),
                 }));
             }
         }

@@ -421,3 +421,28 @@ pub enum ObjError {
         source: MeshError,
     },
 }
+
+/// A number as messages print it: Rust's shortest round-trip form where that is short (zero, or
+/// `1e-5 ≤ |v| < 1e16`), scientific notation otherwise — `1e308`, not 309 digits, and `1e-300`, not 301
+/// zeros. `NaN` and `inf` as Rust prints them.
+///
+/// ```
+/// use hinge_core::error::Num;
+/// assert_eq!(Num(0.25).to_string(), "0.25");
+/// assert_eq!(Num(-1e308).to_string(), "-1e308");
+/// assert_eq!(Num(18446744073709551616.0).to_string(), "1.8446744073709552e19");
+/// assert_eq!(Num(1e-12).to_string(), "1e-12");
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.0.abs();
+        if a == 0.0 || !a.is_finite() || (1e-5..1e16).contains(&a) {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}

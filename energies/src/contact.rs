@@ -176,7 +176,8 @@ impl Contact {
                 element: "contact".into(),
                 message: format!(
                     "a barrier needs a positive margin (its reach; got {}) and no smoothing (got {})",
-                    self.margin, self.smoothing
+                    hinge_core::error::Num(self.margin),
+                    hinge_core::error::Num(self.smoothing)
                 ),
             });
         }

@@ -122,7 +122,11 @@ pub(crate) mod util {
             [v] if v.is_finite() && *v >= min => Ok(*v),
             [v] => Err(EvalError::Parameter {
                 name: name.to_string(),
-                message: format!("must be finite and at least {min}, got {v}"),
+                message: format!(
+                    "must be finite and at least {}, got {}",
+                    hinge_core::error::Num(min),
+                    hinge_core::error::Num(*v)
+                ),
             }),
             _ => Err(EvalError::Parameter {
                 name: name.to_string(),

@@ -103,6 +103,8 @@
 //!
 //! A failed solve leaves the caller's state untouched and reports diagnostics.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use hinge_core::EvalError;
@@ -285,6 +287,11 @@ impl Default for NewtonParams {
     }
 }
 
+/// Iterations the per-solve histories ([`NewtonStats::gradient_norms`], [`NewtonStats::step_norms`]) have
+/// room for before they grow: `max_iterations` can be anything a scene file says (`4294967296` once
+/// asked for 32 GiB up front and aborted the process).
+const HISTORY_CAPACITY: usize = 1024;
+
 /// What a Newton solve did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct NewtonStats {
@@ -350,6 +357,13 @@ pub enum SolverError {
         /// What was done.
         stats: Box<NewtonStats>,
     },
+    /// The stop flag ([`Newton::set_stop`]) was raised: the solve ended before its next iteration, with the
+    /// positions untouched.
+    #[error("interrupted after {} iterations", stats.iterations)]
+    Interrupted {
+        /// What was done.
+        stats: Box<NewtonStats>,
+    },
     /// Inputs that do not fit (sizes, non-finite time step).
     #[error("{0}")]
     Input(String),
@@ -392,7 +406,8 @@ impl SolverError {
             | SolverError::Linear { stats, .. }
             | SolverError::LineSearch { stats }
             | SolverError::NotConverged { stats }
-            | SolverError::Stalled { stats } => (**stats).clone(),
+            | SolverError::Stalled { stats }
+            | SolverError::Interrupted { stats } => (**stats).clone(),
             SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
         }
     }
@@ -518,6 +533,8 @@ pub struct Newton {
     ladder_hint: f64,
     out: Option<SystemEvaluation>,
     work: Work,
+    /// Checked before every iteration ([`Newton::set_stop`]).
+    stop: Option<Arc<AtomicBool>>,
 }
 
 impl std::fmt::Debug for Newton {
@@ -559,12 +576,21 @@ impl Newton {
             ladder_hint: 0.0,
             out: None,
             work: Work::default(),
+            stop: None,
         })
     }
 
     /// The linear solver (for its statistics, such as [`LinearSolver::analyses`]).
     pub fn solver(&self) -> &dyn LinearSolver {
         self.solver.as_ref()
+    }
+
+    /// A flag another thread (a Ctrl-C handler, a GUI's cancel button) raises to end the solves: every
+    /// [`Newton::minimize`] reads it before each iteration and, once it is set, returns
+    /// [`SolverError::Interrupted`] with the positions untouched (like every failed solve). The flag is
+    /// never cleared here; `None` removes it.
+    pub fn set_stop(&mut self, flag: Option<Arc<AtomicBool>>) {
+        self.stop = flag;
     }
 
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
@@ -596,8 +622,10 @@ impl Newton {
         }
         let params = self.params.clone();
         let mut stats = NewtonStats {
-            gradient_norms: Vec::with_capacity(params.max_iterations + 1),
-            step_norms: Vec::with_capacity(params.max_iterations),
+            // Room for the iterations a solve usually takes; a larger budget (a user may give any) grows
+            // the histories only when a solve actually runs that long.
+            gradient_norms: Vec::with_capacity(params.max_iterations.min(HISTORY_CAPACITY) + 1),
+            step_norms: Vec::with_capacity(params.max_iterations.min(HISTORY_CAPACITY)),
             ..NewtonStats::default()
         };
         let mut out = self.out.take().unwrap_or_else(|| SystemEvaluation {
@@ -649,6 +677,15 @@ impl Newton {
         for it in 0..p.max_iterations {
             if p.converged(norm(&w.g), g0, None) {
                 return Ok(());
+            }
+            if self
+                .stop
+                .as_ref()
+                .is_some_and(|f| f.load(Ordering::Relaxed))
+            {
+                return Err(SolverError::Interrupted {
+                    stats: Box::new(s.stats.clone()),
+                });
             }
             self.assemble(s);
             // Levenberg–Marquardt retries: a failed line search raises a minimum diagonal shift.
@@ -1305,7 +1342,9 @@ impl ImplicitEuler {
     /// advances the time by `dt`.
     ///
     /// # Errors
-    /// The last attempt's [`SolverError`] when a substep of `dt / 2^max_halvings` fails too.
+    /// The last attempt's [`SolverError`] when a substep of `dt / 2^max_halvings` fails too;
+    /// [`SolverError::Input`] and [`SolverError::Interrupted`] (the Newton solver's stop flag,
+    /// [`Newton::set_stop`]) at once, without smaller substeps. The frame's state is restored either way.
     pub fn advance(
         &mut self,
         system: &mut System,
@@ -1366,7 +1405,10 @@ impl ImplicitEuler {
                 }
                 Err(e) => {
                     fs.newton.absorb(&e.stats());
-                    if level >= levels || matches!(e, SolverError::Input(_)) {
+                    // Smaller substeps cannot help inputs that do not fit, and must not outlast a stop request.
+                    if level >= levels
+                        || matches!(e, SolverError::Input(_) | SolverError::Interrupted { .. })
+                    {
                         x.copy_from_slice(&x0);
                         v.copy_from_slice(&v0);
                         self.committed = committed0;

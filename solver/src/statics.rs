@@ -129,7 +129,9 @@ pub fn mean_edge_length(rest: &TriMesh) -> f64 {
 /// membrane, the co-rotational one) solves as well.
 ///
 /// # Errors
-/// [`SolverError::Eval`] for an unknown parameter when there are scales; the final solve's error.
+/// [`SolverError::Eval`] for an unknown parameter when there are scales; the final solve's error;
+/// [`SolverError::Interrupted`] with every stage's statistics as soon as any stage sees the Newton solver's
+/// stop flag ([`Newton::set_stop`]).
 pub fn minimize_continued(
     newton: &mut Newton,
     system: &mut System,
@@ -183,11 +185,28 @@ pub fn minimize_continued_all(
         }
         match newton.minimize(system, &mut y, None) {
             Ok(st) => stats.absorb(&st),
+            Err(SolverError::Interrupted { stats: st }) => {
+                // A stop request ends the whole continuation, not just this stage.
+                restore(system);
+                stats.absorb(&st);
+                return Err(SolverError::Interrupted {
+                    stats: Box::new(stats),
+                });
+            }
             Err(e) => stats.absorb(&e.stats()),
         }
     }
     restore(system);
-    let last = newton.minimize(system, &mut y, None)?;
+    let last = match newton.minimize(system, &mut y, None) {
+        Ok(last) => last,
+        Err(SolverError::Interrupted { stats: st }) => {
+            stats.absorb(&st);
+            return Err(SolverError::Interrupted {
+                stats: Box::new(stats),
+            });
+        }
+        Err(e) => return Err(e),
+    };
     stats.absorb(&last);
     x.copy_from_slice(&y);
     Ok(stats)

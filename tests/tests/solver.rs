@@ -1655,3 +1655,131 @@ fn derivatives_that_overflow_are_named_by_term_and_vertex() {
     assert_eq!(stats.factorizations, 0);
     assert_eq!(y, x, "state untouched");
 }
+
+/// `System` as an objective that raises a stop flag when it is evaluated for the `at`-th time (a Ctrl-C
+/// arriving mid-solve, deterministically).
+struct RaisesStop<'a> {
+    system: &'a mut System,
+    flag: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    evaluations: usize,
+    at: usize,
+}
+
+impl hinge_solver::newton::Objective for RaisesStop<'_> {
+    fn n_vertices(&self) -> usize {
+        self.system.n_vertices()
+    }
+    fn pattern(&self) -> &hinge_core::pattern::SymmetricPattern {
+        self.system.pattern()
+    }
+    fn evaluate(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        out: &mut hinge_core::energy::SystemEvaluation,
+    ) -> Result<(), hinge_core::EvalError> {
+        self.evaluations += 1;
+        if self.evaluations == self.at {
+            self.flag.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+        hinge_solver::newton::Objective::evaluate(self.system, x, request, out)
+    }
+}
+
+/// A stop flag ends a solve before its next iteration with the positions untouched and the work counted
+/// (raised mid-solve by the objective itself); a frame of implicit Euler is abandoned at once, without
+/// smaller substeps, its state restored; a continuation ends with every stage's count and the parameter
+/// set back. A huge iteration budget (any `usize`) neither aborts on its preallocation nor changes the
+/// result of a solve that converges.
+#[test]
+fn a_raised_stop_flag_ends_solves_and_frames_with_the_state_untouched() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (rest, mut sys, pins) = thin_strip();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-9,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    // The reference: the same solve without a flag takes many iterations.
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
+    let mut reference = rest.positions().to_vec();
+    let full = newton.minimize(&mut sys, &mut reference, None).unwrap();
+    assert!(full.iterations > 10, "{}", full.iterations);
+    // Raised at the fifth evaluation: the solve stops within an iteration of it.
+    let flag = Arc::new(AtomicBool::new(false));
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
+    newton.set_stop(Some(flag.clone()));
+    let mut x = rest.positions().to_vec();
+    let mut objective = RaisesStop {
+        system: &mut sys,
+        flag: flag.clone(),
+        evaluations: 0,
+        at: 5,
+    };
+    let err = newton.minimize(&mut objective, &mut x, None).unwrap_err();
+    let SolverError::Interrupted { stats } = &err else {
+        panic!("{err}")
+    };
+    assert!(
+        (1..=5).contains(&stats.iterations) && stats.iterations < full.iterations,
+        "{}",
+        stats.iterations
+    );
+    assert!(stats.factorizations >= stats.iterations);
+    assert_eq!(err.stats().iterations, stats.iterations);
+    assert!(err.to_string().starts_with("interrupted after"), "{err}");
+    assert_eq!(x, rest.positions(), "positions untouched");
+    // Lowered again, the same solver finishes the job exactly as a fresh one does.
+    flag.store(false, Ordering::SeqCst);
+    let again = newton.minimize(&mut sys, &mut x, None).unwrap();
+    assert!(again.iterations > 0);
+    // Continuation: a raised flag ends it at the first stage, the parameter back bitwise.
+    use hinge_solver::statics::{membrane_scales, minimize_continued};
+    let scales = membrane_scales(&mut sys, &rest).unwrap();
+    assert!(!scales.is_empty());
+    flag.store(true, Ordering::SeqCst);
+    let mut y = rest.positions().to_vec();
+    let err =
+        minimize_continued(&mut newton, &mut sys, &mut y, "membrane.young", &scales).unwrap_err();
+    assert!(matches!(err, SolverError::Interrupted { .. }), "{err}");
+    assert_eq!(y, rest.positions());
+    assert_eq!(sys.parameter("membrane.young").unwrap(), vec![1e10]);
+    // Implicit Euler: a raised flag fails the frame at once (no substeps), state and time restored.
+    let (mut hs, mut stepper, mut x, mut v) = hard_stepper(20, 0.25);
+    let (x0, v0) = (x.clone(), v.clone());
+    stepper.newton_mut().set_stop(Some(flag.clone()));
+    let err = stepper
+        .advance(&mut hs, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap_err();
+    assert!(matches!(err, SolverError::Interrupted { .. }), "{err}");
+    assert_eq!((&x, &v), (&x0, &v0));
+    assert_eq!(stepper.time(), 0.0);
+    // And with the flag down it takes the same frame as a stepper that never had one.
+    flag.store(false, Ordering::SeqCst);
+    let (mut hs2, mut plain, mut x2, mut v2) = hard_stepper(20, 0.25);
+    let a = stepper
+        .advance(&mut hs, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap();
+    let b = plain
+        .advance(&mut hs2, &mut x2, &mut v2, SubstepPolicy::default())
+        .unwrap();
+    assert_eq!(
+        (a.newton.iterations, &x, &v),
+        (b.newton.iterations, &x2, &v2)
+    );
+    // The largest budget there is: no 2⁶⁴-entry preallocation, the same result as a budget of 2000.
+    let mut huge = Newton::new(
+        &sys,
+        &pins,
+        default_solver(),
+        NewtonParams {
+            max_iterations: usize::MAX,
+            ..params
+        },
+    )
+    .unwrap();
+    let mut z = rest.positions().to_vec();
+    let st = huge.minimize(&mut sys, &mut z, None).unwrap();
+    assert_eq!((st.iterations, &z), (full.iterations, &reference));
+}
