@@ -530,8 +530,29 @@ fn parse_unchecked(text: &str, origin: &str) -> Result<Scene, String> {
     Ok(scene)
 }
 
+/// A parser's message on one line, with number literals longer than 24 characters (the TOML parser
+/// quotes `1e308` as its 309 digits) in their short form ([`Num`]).
 fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
+    let joined = s.split_whitespace().collect::<Vec<_>>().join(" ");
+    let mut out = String::with_capacity(joined.len());
+    let mut run = String::new();
+    let flush = |run: &mut String, out: &mut String| {
+        match run.parse::<f64>() {
+            Ok(v) if run.len() > 24 => out.push_str(&Num(v).to_string()),
+            _ => out.push_str(run),
+        }
+        run.clear();
+    };
+    for c in joined.chars() {
+        if c.is_ascii_digit() || matches!(c, '.' | 'e' | 'E' | '+' | '-') {
+            run.push(c);
+        } else {
+            flush(&mut run, &mut out);
+            out.push(c);
+        }
+    }
+    flush(&mut run, &mut out);
+    out
 }
 
 /// A built-in scene by name, or a TOML file by path.

@@ -1624,6 +1624,15 @@ fn extreme_scene_values_run_or_fail_in_one_short_line() {
         let line = one_line_failure(&["run", path.to_str().unwrap(), "--frames", "1"]);
         assert!(line.len() < 200 && line.contains(shown), "{line}");
     }
+    // The TOML parser quotes a float where an integer belongs in all its 309 digits: shortened.
+    let path = scene_variant(
+        &dir,
+        "cells.toml",
+        "twist",
+        &[("cells = [60, 8]", "cells = [1e308, 8]")],
+    );
+    let line = one_line_failure(&["run", path.to_str().unwrap(), "--frames", "1"]);
+    assert!(line.len() < 300 && line.contains("`1e308`"), "{line}");
     // An absurd time step is printed readably in the run's first line.
     let path = scene_variant(
         &dir,
