@@ -221,6 +221,21 @@ pub trait Energy: Send + Sync {
         Ok(())
     }
 
+    /// Remembers the state [`Energy::end_step`] changes (plastic rest angles) for
+    /// [`Energy::rewind_step_state`]. The time steppers call it at the start of every frame, so that a frame
+    /// that fails after some of its substeps were accepted (and ended) leaves the energy as it was.
+    /// Default: nothing.
+    fn mark_step_state(&mut self) {}
+
+    /// Sets the state [`Energy::end_step`] changes back to what it was at the last
+    /// [`Energy::mark_step_state`] (nothing if it was never called). Default: nothing.
+    ///
+    /// # Errors
+    /// As the implementation says; the state it restores was valid when marked.
+    fn rewind_step_state(&mut self) -> Result<(), EvalError> {
+        Ok(())
+    }
+
     /// The current rest angles (hinge order) of a hinge energy whose rest angles evolve (plasticity);
     /// `None` for every other energy.
     fn evolving_rest_angles(&self) -> Option<&[f64]> {
@@ -336,6 +351,8 @@ struct PlasticState {
     accumulated: Vec<f64>,
     /// Work vector for the angles at the end of a step.
     theta: Vec<f64>,
+    /// `theta_bar` and `accumulated` at the last [`Energy::mark_step_state`].
+    mark: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 /// A hinge energy ψ (one ψ, or a tuple of ψ terms sharing one geometric pass) as a system [`Energy`].
@@ -400,6 +417,7 @@ impl<P: HingePsi> HingeTerm<P> {
             accumulated: vec![0.0; theta_bar.len()],
             theta: Vec::with_capacity(theta_bar.len()),
             theta_bar,
+            mark: None,
         });
         Ok(self)
     }
@@ -505,6 +523,34 @@ where
         if changed {
             self.model.set_rest_angles(&state.theta_bar)?;
         }
+        Ok(())
+    }
+
+    fn mark_step_state(&mut self) {
+        if let Some(state) = self.plastic.as_mut() {
+            match &mut state.mark {
+                Some((tb, a)) => {
+                    tb.clone_from(&state.theta_bar);
+                    a.clone_from(&state.accumulated);
+                }
+                None => state.mark = Some((state.theta_bar.clone(), state.accumulated.clone())),
+            }
+        }
+    }
+
+    fn rewind_step_state(&mut self) -> Result<(), EvalError> {
+        let Some(state) = self.plastic.as_mut() else {
+            return Ok(());
+        };
+        let Some((tb, a)) = &state.mark else {
+            return Ok(());
+        };
+        if *tb != state.theta_bar {
+            // The marked angles were this model's rest angles then: they are accepted again.
+            self.model.set_rest_angles(tb)?;
+            state.theta_bar.clone_from(tb);
+        }
+        state.accumulated.clone_from(a);
         Ok(())
     }
 
@@ -835,6 +881,28 @@ impl System {
             t.end_step(x)?;
         }
         Ok(())
+    }
+
+    /// Remembers every term's step state (see [`Energy::mark_step_state`]).
+    pub fn mark_step_state(&mut self) {
+        for t in &mut self.terms {
+            t.mark_step_state();
+        }
+    }
+
+    /// Sets every term's step state back to the last mark (see [`Energy::rewind_step_state`]).
+    ///
+    /// # Errors
+    /// The first term's error; the other terms are rewound all the same.
+    pub fn rewind_step_state(&mut self) -> Result<(), EvalError> {
+        let mut first = Ok(());
+        for t in &mut self.terms {
+            let r = t.rewind_step_state();
+            if first.is_ok() {
+                first = r;
+            }
+        }
+        first
     }
 
     /// The evolving rest angles of the first term that has them (see [`Energy::evolving_rest_angles`]).

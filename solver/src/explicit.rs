@@ -128,8 +128,10 @@ impl SymplecticEuler {
     /// Advances one frame ([`SymplecticEuler::substeps`] substeps).
     ///
     /// # Errors
-    /// [`SolverError::Unstable`] when a substep blows up (see the module documentation), with `x` and `v`
-    /// set back to the frame's start; [`SolverError::Input`] for sizes that do not fit.
+    /// [`SolverError::Unstable`] when a substep blows up (see the module documentation), with `x`, `v`,
+    /// the time and the system's step state (damping's previous positions, and plastic rest angles through
+    /// [`System::rewind_step_state`]) set back to the frame's start; [`SolverError::Input`] for sizes that
+    /// do not fit.
     pub fn advance(
         &mut self,
         system: &mut System,
@@ -165,13 +167,28 @@ impl SymplecticEuler {
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let h = self.step_size();
         let time0 = self.time;
+        // What a failed frame sets back besides `x` and `v`: the damping terms' previous positions (and
+        // the system's step state they set) and what the substeps' ends changed (plastic rest angles).
+        let prev0 = self.prev.clone();
+        system.mark_step_state();
+        let restore =
+            |me: &mut Self, system: &mut System, x: &mut [Vector3<f64>], v: &mut [Vector3<f64>]| {
+                x.copy_from_slice(&x0);
+                v.copy_from_slice(&v0);
+                // Each call succeeded with these arguments before (the time is finite, it was placed at; the
+                // previous positions started a substep; the marked state was the energies' own).
+                let _ = system.set_time(time0);
+                if !prev0.is_empty() {
+                    let _ = system.begin_step(&prev0, h);
+                }
+                let _ = system.rewind_step_state();
+                me.prev.clone_from(&prev0);
+            };
         let mut targets = Vec::new();
         for k in 0..self.substeps {
             let t_start = time0 + self.dt * (k as f64 / self.substeps as f64);
             if let Err(e) = system.set_time(t_start) {
-                x.copy_from_slice(&x0);
-                v.copy_from_slice(&v0);
-                let _ = system.set_time(time0);
+                restore(self, system, x, v);
                 return Err(SolverError::Input(format!(
                     "placing the system at time {t_start}: {e}"
                 )));
@@ -183,10 +200,7 @@ impl SymplecticEuler {
                 targets.as_slice()
             });
             if let Err(e) = self.substep(system, x, v, h, t) {
-                x.copy_from_slice(&x0);
-                v.copy_from_slice(&v0);
-                // The time is finite (it was placed at before), so placing succeeds.
-                let _ = system.set_time(time0);
+                restore(self, system, x, v);
                 return Err(e);
             }
         }

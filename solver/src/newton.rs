@@ -1336,7 +1336,8 @@ impl ImplicitEuler {
     /// accepted one lets the next grow back (doubling, aligned so that the substeps tile the frame
     /// exactly). Step state is committed per accepted substep only. Below the floor the frame fails: `x` and
     /// `v` are then those of the frame's start, and so is the system's step state (if no step was ever
-    /// accepted, it stays as set for the last attempt's start, which is what a retry sets again). Every
+    /// accepted, it stays as set for the last attempt's start, which is what a retry sets again), including
+    /// what the accepted substeps' ends changed ([`System::rewind_step_state`]: plastic rest angles). Every
     /// substep is solved with the system's moving parts at the substep's end time ([`System::set_time`]);
     /// a failed frame leaves [`ImplicitEuler::time`] and the system at the frame's start, an accepted one
     /// advances the time by `dt`.
@@ -1375,6 +1376,8 @@ impl ImplicitEuler {
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let committed0 = self.committed.clone();
         let time0 = self.time;
+        // Accepted substeps end (plastic rest angles move); a frame that fails after some sets that back.
+        system.mark_step_state();
         let mut fs = FrameStats {
             smallest_fraction: 1.0,
             ..FrameStats::default()
@@ -1414,6 +1417,8 @@ impl ImplicitEuler {
                         self.committed = committed0;
                         self.time = time0;
                         self.restore_step_state(system);
+                        // The marked state was the energies' own a frame ago: rewinding to it succeeds.
+                        let _ = system.rewind_step_state();
                         return Err(e);
                     }
                     fs.failed_attempts += 1;

@@ -318,3 +318,202 @@ fn moving_pins_reach_their_targets_at_every_frame_end_under_substeps() {
     // substep, h = dt/4).
     assert!((v[3] - velocity).norm() < 1e-9, "{:?}", v[3]);
 }
+
+/// A zero energy that counts the steps ended: from the `fail_after`-th end on, every evaluation fails (a
+/// step the solver cannot take), and at the `raise_at`-th end it raises a stop flag (a Ctrl-C arriving
+/// between two substeps).
+struct EndHook {
+    ends: usize,
+    fail_after: usize,
+    raise_at: Option<(usize, std::sync::Arc<std::sync::atomic::AtomicBool>)>,
+}
+
+impl Energy for EndHook {
+    fn name(&self) -> &str {
+        "hook"
+    }
+    fn n_vertices(&self) -> usize {
+        4
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(
+        &mut self,
+        _: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), EvalError> {
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        _: &[Vector3<f64>],
+        _: Request,
+        _: Parallelism,
+        _: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, EvalError> {
+        if self.ends >= self.fail_after {
+            Err(EvalError::Step { dt: 1.0 })
+        } else {
+            Ok(0.0)
+        }
+    }
+    fn end_step(&mut self, _: &[Vector3<f64>]) -> Result<(), EvalError> {
+        self.ends += 1;
+        if let Some((at, flag)) = &self.raise_at
+            && *at == self.ends
+        {
+            flag.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+        Ok(())
+    }
+}
+
+/// A frame that fails after some of its substeps were accepted (each moving the plastic rest angle) sets the
+/// rest angle and the accumulated plastic angle back to the frame's start, with the positions and
+/// velocities: for implicit Euler at the substep floor and on a stop request between substeps, and for
+/// symplectic Euler when a later substep cannot be evaluated. The next frame then runs as if the failed one
+/// had never been tried.
+#[test]
+fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was() {
+    use hinge_solver::explicit::SymplecticEuler;
+    use hinge_solver::newton::SolverError;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let (rest, fold) = one_hinge();
+    let (ended, evaluated) = (Times::default(), Times::default());
+    let dt = 0.01;
+    let law = Plasticity {
+        yield_angle: 0.05,
+        hardening: 0.3,
+    };
+    let make = |hook: EndHook| {
+        let terms: Vec<Box<dyn Energy>> = vec![
+            Box::new(
+                HingeTerm::new(
+                    "bending",
+                    BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+                    Method::Refactored,
+                )
+                .with_plasticity(law)
+                .unwrap(),
+            ),
+            // Rejects dt and dt/2: the frame's first accepted substep is dt/4.
+            Box::new(StepGate::new(4, dt / 3.0, &ended, &evaluated)),
+            Box::new(hook),
+        ];
+        System::new(4, terms).unwrap()
+    };
+    let pins = Pins::new(4, vec![0, 1, 2]).unwrap();
+    let masses = lumped_masses(&rest, 1.0);
+    let plastic = |sys: &System| {
+        (
+            sys.evolving_rest_angles().unwrap()[0],
+            sys.max_plastic_angle().unwrap(),
+        )
+    };
+    // The wing x3 folding on at 20 rad/s: the hinge keeps yielding over the first frames.
+    let folding = || {
+        let mut v = vec![Vector3::zeros(); 4];
+        v[3] = Vector3::new(0.0, 0.9 * 0.9f64.sin(), -0.9 * 0.9f64.cos()) * 20.0;
+        v
+    };
+    // One good frame first (4 substeps of dt/4), so that the state to keep is not the initial one.
+    let start = |hook: EndHook| {
+        let mut sys = make(hook);
+        let mut stepper = ImplicitEuler::new(
+            &sys,
+            dt,
+            masses.clone(),
+            pins.clone(),
+            default_solver(),
+            params_tight(),
+        )
+        .unwrap();
+        let (mut x, mut v) = (fold(0.9), folding());
+        stepper
+            .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 2 })
+            .unwrap();
+        (sys, stepper, x, v)
+    };
+    let flag = Arc::new(AtomicBool::new(false));
+    for case in ["floor", "stop"] {
+        let hook = match case {
+            // The next frame's first substep is accepted, every attempt after it fails.
+            "floor" => EndHook {
+                ends: 0,
+                fail_after: 5,
+                raise_at: None,
+            },
+            _ => EndHook {
+                ends: 0,
+                fail_after: usize::MAX,
+                raise_at: Some((5, flag.clone())),
+            },
+        };
+        let (mut sys, mut stepper, mut x, mut v) = start(hook);
+        let (mut twin, mut twin_stepper, mut tx, mut tv) = start(EndHook {
+            ends: 0,
+            fail_after: usize::MAX,
+            raise_at: None,
+        });
+        stepper.newton_mut().set_stop(Some(flag.clone()));
+        let before = plastic(&sys);
+        assert!(before.1 > 0.0, "{case}: the first frame yielded");
+        let (x0, v0, t0) = (x.clone(), v.clone(), stepper.time());
+        let err = stepper
+            .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 2 })
+            .unwrap_err();
+        match case {
+            "floor" => assert!(matches!(err, SolverError::Eval { .. }), "{err}"),
+            _ => assert!(matches!(err, SolverError::Interrupted { .. }), "{err}"),
+        }
+        assert_eq!(plastic(&sys), before, "{case}: plastic state set back");
+        assert_eq!((&x, &v, stepper.time()), (&x0, &v0, t0), "{case}");
+        // The same frame in a run without the hook yields further (from its first substep on, which the
+        // failed frame had accepted and ended): so there was something to set back.
+        twin_stepper
+            .advance(
+                &mut twin,
+                &mut tx,
+                &mut tv,
+                SubstepPolicy { max_halvings: 2 },
+            )
+            .unwrap();
+        assert!(plastic(&twin).1 > before.1, "{case}");
+        if case == "stop" {
+            // The frame again, the flag down: exactly the twin's frame.
+            flag.store(false, Ordering::SeqCst);
+            stepper
+                .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 2 })
+                .unwrap();
+            assert_eq!((&x, &v), (&tx, &tv));
+            assert_eq!(plastic(&sys), plastic(&twin));
+        }
+    }
+    // Symplectic Euler, 8 substeps a frame: the hook fails the evaluation after 3 ends of the second frame.
+    let terms: Vec<Box<dyn Energy>> = vec![
+        Box::new(
+            HingeTerm::new(
+                "bending",
+                BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+                Method::Refactored,
+            )
+            .with_plasticity(law)
+            .unwrap(),
+        ),
+        Box::new(EndHook {
+            ends: 0,
+            fail_after: 11,
+            raise_at: None,
+        }),
+    ];
+    let mut sys = System::new(4, terms).unwrap();
+    let mut explicit = SymplecticEuler::new(&sys, 1e-3, 8, masses.clone(), &pins).unwrap();
+    let (mut x, mut v) = (fold(0.9), folding());
+    explicit.advance(&mut sys, &mut x, &mut v).unwrap();
+    let before = plastic(&sys);
+    assert!(before.1 > 0.0);
+    let (x0, v0) = (x.clone(), v.clone());
+    let err = explicit.advance(&mut sys, &mut x, &mut v).unwrap_err();
+    assert!(matches!(err, SolverError::Unstable { .. }), "{err}");
+    assert_eq!(plastic(&sys), before, "explicit: plastic state set back");
+    assert_eq!((&x, &v, explicit.time()), (&x0, &v0, 1e-3));
+}
