@@ -366,6 +366,19 @@ impl Energy for EndHook {
     }
 }
 
+/// A plastic discrete-shells hinge term (k = 1) on `rest`, boxed for a [`System`].
+fn plastic_hinges(rest: &TriMesh, law: Plasticity) -> Box<dyn Energy> {
+    Box::new(
+        HingeTerm::new(
+            "bending",
+            BendingModel::new(rest, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        )
+        .with_plasticity(law)
+        .unwrap(),
+    )
+}
+
 /// A frame that fails after some of its substeps were accepted (each moving the plastic rest angle) sets the
 /// rest angle and the accumulated plastic angle back to the frame's start, with the positions and
 /// velocities: for implicit Euler at the substep floor and on a stop request between substeps, and for
@@ -386,15 +399,7 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
     };
     let make = |hook: EndHook| {
         let terms: Vec<Box<dyn Energy>> = vec![
-            Box::new(
-                HingeTerm::new(
-                    "bending",
-                    BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
-                    Method::Refactored,
-                )
-                .with_plasticity(law)
-                .unwrap(),
-            ),
+            plastic_hinges(&rest, law),
             // Rejects dt and dt/2: the frame's first accepted substep is dt/4.
             Box::new(StepGate::new(4, dt / 3.0, &ended, &evaluated)),
             Box::new(hook),
@@ -490,15 +495,7 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
     }
     // Symplectic Euler, 8 substeps a frame: the hook fails the evaluation after 3 ends of the second frame.
     let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(
-            HingeTerm::new(
-                "bending",
-                BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
-                Method::Refactored,
-            )
-            .with_plasticity(law)
-            .unwrap(),
-        ),
+        plastic_hinges(&rest, law),
         Box::new(EndHook {
             ends: 0,
             fail_after: 11,
