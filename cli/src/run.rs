@@ -38,8 +38,8 @@ use hinge_solver::linear::{
 use crate::scene::Scene;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
-    FrameStats, Globalization, ImplicitEuler, Newton, NewtonParams, PinMotion, SolverError,
-    SubstepPolicy,
+    FrameStats, Globalization, ImplicitEuler, IterationReport, Newton, NewtonParams, NewtonStats,
+    Observer, PinMotion, SolverError, SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
@@ -108,7 +108,9 @@ impl FrameFormat {
 pub struct RunSummary {
     /// Frames simulated.
     pub frames: usize,
-    /// Newton iterations, summed.
+    /// Newton iterations, summed (with an interrupted run's abandoned frame: the work counters
+    /// `newton_iterations`, `line_search_steps`, `factorizations`, `definite_iterations` and the seconds
+    /// count every iteration spent, `substeps` and the norms only the frames completed).
     pub newton_iterations: usize,
     /// Line-search trials after the first (halvings and extrapolation doublings), summed.
     pub line_search_steps: usize,
@@ -147,6 +149,15 @@ pub struct RunSummary {
 }
 
 impl RunSummary {
+    /// Adds a solve's work counters and linear-solve seconds (not its norms).
+    fn add_work(&mut self, stats: &NewtonStats) {
+        self.newton_iterations += stats.iterations;
+        self.line_search_steps += stats.line_search_steps;
+        self.factorizations += stats.factorizations;
+        self.definite_iterations += stats.definite_iterations;
+        self.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
+    }
+
     /// Adds the system's per-term evaluation times (taken, so they are counted once).
     fn add_timings(&mut self, system: &mut System) {
         for (name, sec) in system.take_timings() {
@@ -410,6 +421,22 @@ pub fn equilibrium(
     stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
 ) -> Result<RunSummary, String> {
+    equilibrium_observed(scene, rest, out, stop, names, None)
+}
+
+/// [`equilibrium`] with `observer` called after every accepted Newton iteration of every continuation
+/// stage ([`Newton::set_observer`]; [`static_progress`] prints progress lines from it).
+///
+/// # Errors
+/// As [`equilibrium`].
+pub fn equilibrium_observed(
+    scene: &Scene,
+    rest: &TriMesh,
+    out: Option<Output<'_>>,
+    stop: Option<&Arc<AtomicBool>>,
+    names: Option<&FileNumbering>,
+    observer: Option<Observer>,
+) -> Result<RunSummary, String> {
     let start = Instant::now();
     let Built {
         mut system,
@@ -427,6 +454,7 @@ pub fn equilibrium(
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
     newton.set_stop(stop.cloned());
+    newton.set_observer(observer);
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
     let (parameter, stages) = membrane_stages(scene, rest, &mut system)
@@ -746,16 +774,16 @@ pub fn simulate_until(
         pinned.dedup();
         let pins = hinge_energies::pins::Pins::new(n, pinned).map_err(|e| format!("pins: {e}"))?;
         Ok(if scene.solver.integrator == "symplectic-euler" {
-            Stepper::Explicit(
-                SymplecticEuler::new(
-                    system,
-                    scene.dt,
-                    scene.solver.substeps,
-                    masses.clone(),
-                    &pins,
-                )
-                .map_err(|e| e.to_string())?,
+            let mut stepper = SymplecticEuler::new(
+                system,
+                scene.dt,
+                scene.solver.substeps,
+                masses.clone(),
+                &pins,
             )
+            .map_err(|e| e.to_string())?;
+            stepper.set_stop(stop.cloned());
+            Stepper::Explicit(stepper)
         } else {
             let mut stepper = ImplicitEuler::new(
                 system,
@@ -860,56 +888,50 @@ pub fn simulate_until(
             }
         };
         let motion: Option<&dyn PinMotion> = (!groups.is_empty()).then_some(&targets);
-        let fs = match &mut stepper {
-            Stepper::Implicit(s) => match s.advance_with(
-                &mut system,
-                &mut x,
-                &mut v,
-                policy,
-                motion,
-            ) {
-                // Stopped within the frame: `x`, `v` and the system are the last completed frame's.
-                Err(SolverError::Interrupted { .. }) => {
-                    summary.frames = frame;
-                    summary.interrupted = true;
-                    if !frame.is_multiple_of(every) {
-                        // The animation ends on the last frame done (rewritten: the same positions).
-                        write_frame(frame, &x, true)?;
-                    }
-                    break;
+        let result = match &mut stepper {
+            Stepper::Implicit(s) => s.advance_with(&mut system, &mut x, &mut v, policy, motion),
+            Stepper::Explicit(s) => s.advance_with(&mut system, &mut x, &mut v, motion),
+        };
+        let fs = match result {
+            Ok(fs) => fs,
+            // Stopped within the frame: `x`, `v` and the system are the last completed frame's; the work
+            // spent on the abandoned frame counts.
+            Err(SolverError::Interrupted { stats }) => {
+                summary.add_work(&stats);
+                summary.add_timings(&mut system);
+                summary.frames = frame;
+                summary.interrupted = true;
+                if !frame.is_multiple_of(every) {
+                    // The animation ends on the last frame done (rewritten: the same positions).
+                    write_frame(frame, &x, true)?;
                 }
-                r => r.map_err(|e| {
-                    format!(
+                break;
+            }
+            Err(e) => {
+                return Err(match stepper {
+                    Stepper::Implicit(_) => format!(
                         "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed)",
                         frame + 1,
                         solver_message(&e, names),
                         1u64 << policy.max_halvings.min(30)
-                    )
-                })?,
-            },
-            Stepper::Explicit(s) => s
-                .advance_with(&mut system, &mut x, &mut v, motion)
-                .map_err(|e| {
-                    format!(
+                    ),
+                    Stepper::Explicit(_) => format!(
                         "frame {}: {} ({frame} frames completed; written up to frame_{frame:04})",
                         frame + 1,
                         solver_message(&e, names)
-                    )
-                })?,
+                    ),
+                });
+            }
         };
         let stats = &fs.newton;
-        summary.newton_iterations += stats.iterations;
+        summary.add_work(stats);
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
-        summary.line_search_steps += stats.line_search_steps;
-        summary.factorizations += stats.factorizations;
-        summary.definite_iterations += stats.definite_iterations;
         summary.substeps += fs.substeps;
         summary.max_final_gradient_norm = summary
             .max_final_gradient_norm
             .max(fs.max_final_gradient_norm);
         summary.smallest_substep_fraction =
             summary.smallest_substep_fraction.min(fs.smallest_fraction);
-        summary.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
         summary.add_timings(&mut system);
         let interrupted =
             stop.is_some_and(|s| s.load(Ordering::SeqCst)) && frame + 1 < scene.frames;
@@ -958,6 +980,33 @@ pub fn simulate_until(
     summary.max_speed = v.iter().map(|w| w.norm()).fold(0.0, f64::max);
     summary.total_seconds = start.elapsed().as_secs_f64();
     Ok(summary)
+}
+
+/// How often [`static_progress`] reports in `hinge run --static`.
+pub const STATIC_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// A Newton observer for long static solves: after an accepted iteration that ends at least `every` after
+/// the last report (or the observer's creation), `emit` gets one line, `static: I Newton iterations, gradient
+/// norm G, S s`, with I the accepted iterations so far (over every continuation stage), G the latest ‖∇F‖
+/// and S the seconds since the observer was made. `every = 0` reports every iteration.
+pub fn static_progress(
+    every: std::time::Duration,
+    mut emit: impl FnMut(String) + Send + 'static,
+) -> Observer {
+    let start = Instant::now();
+    let (mut last, mut done) = (start, 0usize);
+    Box::new(move |r: &IterationReport| {
+        done += 1;
+        let now = Instant::now();
+        if now.duration_since(last) >= every {
+            last = now;
+            emit(format!(
+                "static: {done} Newton iterations, gradient norm {:.2e}, {:.0} s",
+                r.gradient_norm,
+                now.duration_since(start).as_secs_f64()
+            ));
+        }
+    })
 }
 
 /// The time integrator of a run.
@@ -1063,7 +1112,21 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     });
     let frames = scene.frames;
     let summary = if args.statics {
-        pool.install(|| equilibrium(&scene, &rest, frames_dir, Some(&*INTERRUPTED), names))?
+        // A static solve of a large soft shell takes minutes: a line every few seconds shows it moving.
+        let progress = static_progress(STATIC_PROGRESS_EVERY, |line| {
+            println!("{line}");
+            let _ = std::io::stdout().flush();
+        });
+        pool.install(|| {
+            equilibrium_observed(
+                &scene,
+                &rest,
+                frames_dir,
+                Some(&*INTERRUPTED),
+                names,
+                Some(progress),
+            )
+        })?
     } else {
         pool.install(|| {
             simulate_until(
@@ -1154,7 +1217,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
 
 #[cfg(test)]
 mod tests {
-    use super::{build, equilibrium};
+    use super::{build, equilibrium, equilibrium_observed, static_progress};
     use crate::scene::{Scene, load};
     use hinge_core::TriMesh;
 
@@ -1247,6 +1310,60 @@ mod tests {
         for membrane in ["stvk", "corotational"] {
             continued_and_plain_agree(membrane);
         }
+    }
+
+    /// `hinge run --static`'s progress lines, reporting every iteration (`every = 0`): one per accepted
+    /// Newton iteration of every continuation stage, counting up, the last with the final gradient norm;
+    /// the solve is bitwise the one without an observer.
+    #[test]
+    fn static_progress_reports_each_iteration_and_leaves_the_solve_as_it_is() {
+        use std::sync::{Arc, Mutex};
+        // A stiff thin strip: several membrane stages.
+        let scene = strip(1e10, 1e-4);
+        let rest = scene.rest_mesh(None).unwrap();
+        assert!(membrane_stages(&scene, &rest).unwrap().len() >= 2);
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let sink = lines.clone();
+        let progress = static_progress(std::time::Duration::ZERO, move |line| {
+            sink.lock().unwrap().push(line);
+        });
+        let observed =
+            equilibrium_observed(&scene, &rest, None, None, None, Some(progress)).unwrap();
+        let plain = equilibrium(&scene, &rest, None, None, None).unwrap();
+        assert_eq!(
+            (
+                observed.newton_iterations,
+                observed.factorizations,
+                observed.far_end_drop.to_bits(),
+                observed.final_gradient_norm.to_bits()
+            ),
+            (
+                plain.newton_iterations,
+                plain.factorizations,
+                plain.far_end_drop.to_bits(),
+                plain.final_gradient_norm.to_bits()
+            )
+        );
+        let lines = lines.lock().unwrap();
+        assert_eq!(lines.len(), plain.newton_iterations, "{lines:?}");
+        for (k, line) in lines.iter().enumerate() {
+            assert!(
+                line.starts_with(&format!(
+                    "static: {} Newton iterations, gradient norm ",
+                    k + 1
+                )),
+                "{line}"
+            );
+        }
+        let last = lines.last().unwrap();
+        assert!(
+            last.contains(&format!(
+                "gradient norm {:.2e}, ",
+                plain.final_gradient_norm
+            )),
+            "{last} vs {:e}",
+            plain.final_gradient_norm
+        );
     }
 
     fn continued_and_plain_agree(membrane: &str) {

@@ -1511,6 +1511,17 @@ fn custom_psi_scenes_run_like_the_builtin() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// The iterations of a per-frame line `frame   k/N: I Newton iterations, …` (0 for other lines).
+fn newton_iterations_of(line: &str) -> u64 {
+    if !line.starts_with("frame ") {
+        return 0;
+    }
+    line.split_once(": ")
+        .and_then(|(_, r)| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"))
+}
+
 /// Sends SIGINT to `child`: `kill -INT`, or Python's os.kill where no `kill` program is installed (a fresh
 /// machine has Python).
 fn interrupt(child: &std::process::Child) {
@@ -1548,10 +1559,19 @@ fn ctrl_c_stops_a_static_solve_between_newton_iterations() {
         .unwrap();
     let stdout = child.stdout.take().unwrap();
     let mut lines = std::io::BufReader::new(stdout).lines();
-    // The header is printed once the solve starts.
+    // The header is printed once the solve starts, then a progress line every 5 s.
     let header = lines.next().unwrap().unwrap();
     assert!(header.contains("static equilibrium"), "{header}");
-    std::thread::sleep(std::time::Duration::from_secs(2));
+    let progress = lines.next().unwrap().unwrap();
+    let done: u64 = progress
+        .strip_prefix("static: ")
+        .and_then(|p| p.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{progress}"));
+    assert!(
+        done >= 1 && progress.contains(" Newton iterations, gradient norm "),
+        "{progress}"
+    );
     let t = std::time::Instant::now();
     interrupt(&child);
     let rest: Vec<String> = lines.map(|l| l.unwrap()).collect();
@@ -1567,7 +1587,7 @@ fn ctrl_c_stops_a_static_solve_between_newton_iterations() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["interrupted"], true);
     assert_eq!(summary["static"], true);
-    assert!(summary["newton_iterations"].as_u64().unwrap() >= 1);
+    assert!(summary["newton_iterations"].as_u64().unwrap() >= done);
     assert!(!out.join("static.obj").exists());
     assert!(
         rest.iter()
@@ -1727,8 +1747,11 @@ fn thread_and_frame_limits_and_interrupts() {
     let stdout = child.stdout.take().unwrap();
     let mut lines = std::io::BufReader::new(stdout).lines();
     // Wait for the third frame, then interrupt.
+    let mut reported = 0;
     for line in lines.by_ref() {
-        if line.unwrap().starts_with("frame    3/") {
+        let line = line.unwrap();
+        reported += newton_iterations_of(&line);
+        if line.starts_with("frame    3/") {
             break;
         }
     }
@@ -1745,6 +1768,13 @@ fn thread_and_frame_limits_and_interrupts() {
     assert_eq!(summary["interrupted"], true);
     let frames = summary["frames"].as_u64().unwrap();
     assert!((3..5000).contains(&frames), "{frames}");
+    // The summary counts every frame's Newton iterations, an abandoned frame's too.
+    reported += rest.iter().map(|l| newton_iterations_of(l)).sum::<u64>();
+    assert!(
+        summary["newton_iterations"].as_u64().unwrap() >= reported && reported > 0,
+        "{} vs {reported}",
+        summary["newton_iterations"]
+    );
     assert!(out.join(format!("frame_{frames:04}.obj")).exists());
     assert!(!out.join(format!("frame_{:04}.obj", frames + 1)).exists());
     assert!(

@@ -16,6 +16,9 @@
 //! not the total: the damping terms' step potentials are not energies.) On error `x` and `v` are those of
 //! the frame's start; no NaN is ever returned.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use hinge_core::bending::Request;
 use hinge_core::energy::{System, SystemEvaluation};
 use hinge_core::nalgebra::Vector3;
@@ -40,6 +43,8 @@ pub struct SymplecticEuler {
     substeps_done: usize,
     /// The time of the current state (s).
     time: f64,
+    /// Checked before every substep ([`SymplecticEuler::set_stop`]).
+    stop: Option<Arc<AtomicBool>>,
 }
 
 impl std::fmt::Debug for SymplecticEuler {
@@ -102,7 +107,17 @@ impl SymplecticEuler {
             bound: None,
             substeps_done: 0,
             time: 0.0,
+            stop: None,
         })
+    }
+
+    /// A flag another thread (a Ctrl-C handler, a GUI's cancel button) raises to end the stepping: every
+    /// [`SymplecticEuler::advance`] reads it before each substep and, once it is set, returns
+    /// [`SolverError::Interrupted`] with the frame's state restored (as for a failed frame). A frame of
+    /// many substeps on a large mesh thus stops within one substep. The flag is never cleared here;
+    /// `None` removes it.
+    pub fn set_stop(&mut self, flag: Option<Arc<AtomicBool>>) {
+        self.stop = flag;
     }
 
     /// The time (s) of the current state: 0 for a new stepper, advanced by `dt` per frame.
@@ -130,8 +145,9 @@ impl SymplecticEuler {
     /// # Errors
     /// [`SolverError::Unstable`] when a substep blows up (see the module documentation), with `x`, `v`,
     /// the time and the system's step state (damping's previous positions, and plastic rest angles through
-    /// [`System::rewind_step_state`]) set back to the frame's start; [`SolverError::Input`] for sizes that
-    /// do not fit.
+    /// [`System::rewind_step_state`]) set back to the frame's start; [`SolverError::Interrupted`] (no Newton
+    /// work: its statistics are empty) when the stop flag ([`SymplecticEuler::set_stop`]) is up before a
+    /// substep, with the same restore; [`SolverError::Input`] for sizes that do not fit.
     pub fn advance(
         &mut self,
         system: &mut System,
@@ -199,6 +215,16 @@ impl SymplecticEuler {
                 m.targets((k + 1) as f64 / self.substeps as f64, &mut targets);
                 targets.as_slice()
             });
+            if self
+                .stop
+                .as_ref()
+                .is_some_and(|f| f.load(Ordering::Relaxed))
+            {
+                restore(self, system, x, v);
+                return Err(SolverError::Interrupted {
+                    stats: Box::default(),
+                });
+            }
             if let Err(e) = self.substep(system, x, v, h, t) {
                 restore(self, system, x, v);
                 return Err(e);

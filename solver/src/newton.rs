@@ -518,6 +518,30 @@ impl Reduced {
     }
 }
 
+/// What [`Newton::set_observer`]'s callback sees after each accepted iteration of [`Newton::minimize`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub struct IterationReport {
+    /// The iteration just done, counted from 1 in this solve (as [`NewtonStats::iterations`]).
+    pub iteration: usize,
+    /// F at the new iterate: the objective plus the inertia term when there is one.
+    pub energy: f64,
+    /// ‖∇F‖ over the free degrees of freedom at the new iterate (the entry this iteration appends to
+    /// [`NewtonStats::gradient_norms`]).
+    pub gradient_norm: f64,
+    /// ‖Δx‖ of the accepted step (the entry appended to [`NewtonStats::step_norms`]).
+    pub step_norm: f64,
+    /// The line search's step length α (1 for a full step; above 1 for an extrapolated one).
+    pub step_length: f64,
+    /// The diagonal shift of the factored matrix (0 for the unshifted Hessian).
+    pub shift: f64,
+    /// Whether the step used the definite Hessian ([`Globalization::ProjectOnDemand`]).
+    pub definite: bool,
+}
+
+/// The callback of [`Newton::set_observer`].
+pub type Observer = Box<dyn FnMut(&IterationReport) + Send>;
+
 /// A Newton minimiser bound to an objective's pattern and a set of pins (the symbolic analysis is done once
 /// here and reused by every iteration and every later solve).
 pub struct Newton {
@@ -535,6 +559,8 @@ pub struct Newton {
     work: Work,
     /// Checked before every iteration ([`Newton::set_stop`]).
     stop: Option<Arc<AtomicBool>>,
+    /// Called after every accepted iteration ([`Newton::set_observer`]).
+    observer: Option<Observer>,
 }
 
 impl std::fmt::Debug for Newton {
@@ -542,6 +568,7 @@ impl std::fmt::Debug for Newton {
         f.debug_struct("Newton")
             .field("params", &self.params)
             .field("solver", &self.solver.name())
+            .field("observer", &self.observer.is_some())
             .finish()
     }
 }
@@ -577,6 +604,7 @@ impl Newton {
             out: None,
             work: Work::default(),
             stop: None,
+            observer: None,
         })
     }
 
@@ -591,6 +619,15 @@ impl Newton {
     /// never cleared here; `None` removes it.
     pub fn set_stop(&mut self, flag: Option<Arc<AtomicBool>>) {
         self.stop = flag;
+    }
+
+    /// A callback every [`Newton::minimize`] calls after each accepted iteration, with the new iterate's
+    /// energy and gradient norm and the step taken ([`IterationReport`]): progress output for long solves,
+    /// logging, convergence plots. It sees nothing of an iteration whose line search fails (the solve then
+    /// ends with [`SolverError::LineSearch`]) and cannot change the solve: with or without it, the iterates
+    /// are bitwise the same. `None` removes it.
+    pub fn set_observer(&mut self, observer: Option<Observer>) {
+        self.observer = observer;
     }
 
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
@@ -722,6 +759,7 @@ impl Newton {
                 s.stats.max_shift = s.stats.max_shift.max(damping);
             };
             s.stats.iterations = it + 1;
+            let step_definite = definite;
             if definite {
                 s.stats.definite_iterations += 1;
             }
@@ -750,6 +788,17 @@ impl Newton {
             s.stats.gradient_norms.push(gn);
             let step = alpha * norm(&w.d);
             s.stats.step_norms.push(step);
+            if let Some(observe) = self.observer.as_mut() {
+                observe(&IterationReport {
+                    iteration: it + 1,
+                    energy: f,
+                    gradient_norm: gn,
+                    step_norm: step,
+                    step_length: alpha,
+                    shift,
+                    definite: step_definite,
+                });
+            }
             let largest = alpha * largest_vertex_step(&self.reduced.dofs, &w.d);
             let step_test = (newton_step || at_rounding_floor).then_some((step, largest));
             if p.single_iteration || p.converged(gn, g0, step_test) {
@@ -1346,6 +1395,8 @@ impl ImplicitEuler {
     /// The last attempt's [`SolverError`] when a substep of `dt / 2^max_halvings` fails too;
     /// [`SolverError::Input`] and [`SolverError::Interrupted`] (the Newton solver's stop flag,
     /// [`Newton::set_stop`]) at once, without smaller substeps. The frame's state is restored either way.
+    /// The interruption's statistics are the whole frame's (every attempt's, the undone accepted substeps'
+    /// included: the work spent on it); the other errors' are the last attempt's.
     pub fn advance(
         &mut self,
         system: &mut System,
@@ -1419,6 +1470,13 @@ impl ImplicitEuler {
                         self.restore_step_state(system);
                         // The marked state was the energies' own a frame ago: rewinding to it succeeds.
                         let _ = system.rewind_step_state();
+                        // A stop request reports the whole frame's work (its accepted substeps were
+                        // undone, but their iterations were spent); other errors the last attempt's.
+                        if matches!(e, SolverError::Interrupted { .. }) {
+                            return Err(SolverError::Interrupted {
+                                stats: Box::new(fs.newton),
+                            });
+                        }
                         return Err(e);
                     }
                     fs.failed_attempts += 1;

@@ -474,7 +474,7 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
         assert_eq!((&x, &v, stepper.time()), (&x0, &v0, t0), "{case}");
         // The same frame in a run without the hook yields further (from its first substep on, which the
         // failed frame had accepted and ended): so there was something to set back.
-        twin_stepper
+        let twin_frame = twin_stepper
             .advance(
                 &mut twin,
                 &mut tx,
@@ -484,6 +484,17 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
             .unwrap();
         assert!(plastic(&twin).1 > before.1, "{case}");
         if case == "stop" {
+            // The interruption reports the frame's work: its first, accepted and undone, substep's Newton
+            // iterations (the twin's frame took those and three more substeps).
+            let work = err.stats();
+            assert_eq!(twin_frame.substeps, 4);
+            assert!(
+                0 < work.iterations && work.iterations < twin_frame.newton.iterations,
+                "{} of {}",
+                work.iterations,
+                twin_frame.newton.iterations
+            );
+            assert!(work.factorizations >= work.iterations);
             // The frame again, the flag down: exactly the twin's frame.
             flag.store(false, Ordering::SeqCst);
             stepper
@@ -493,24 +504,66 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
             assert_eq!(plastic(&sys), plastic(&twin));
         }
     }
-    // Symplectic Euler, 8 substeps a frame: the hook fails the evaluation after 3 ends of the second frame.
-    let terms: Vec<Box<dyn Energy>> = vec![
-        plastic_hinges(&rest, law),
-        Box::new(EndHook {
+    // Symplectic Euler, 8 substeps a frame: the hook fails the evaluation after 3 ends of the second frame
+    // ("fail"), or raises the stop flag at that point ("stop": the frame ends before its fourth substep).
+    let explicit_run = |hook: EndHook| {
+        let terms: Vec<Box<dyn Energy>> = vec![plastic_hinges(&rest, law), Box::new(hook)];
+        let mut sys = System::new(4, terms).unwrap();
+        let mut explicit = SymplecticEuler::new(&sys, 1e-3, 8, masses.clone(), &pins).unwrap();
+        let (mut x, mut v) = (fold(0.9), folding());
+        explicit.advance(&mut sys, &mut x, &mut v).unwrap();
+        (sys, explicit, x, v)
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    for case in ["fail", "stop"] {
+        let (mut sys, mut explicit, mut x, mut v) = explicit_run(EndHook {
             ends: 0,
-            fail_after: 11,
-            raise_at: None,
-        }),
-    ];
-    let mut sys = System::new(4, terms).unwrap();
-    let mut explicit = SymplecticEuler::new(&sys, 1e-3, 8, masses.clone(), &pins).unwrap();
-    let (mut x, mut v) = (fold(0.9), folding());
-    explicit.advance(&mut sys, &mut x, &mut v).unwrap();
-    let before = plastic(&sys);
-    assert!(before.1 > 0.0);
-    let (x0, v0) = (x.clone(), v.clone());
-    let err = explicit.advance(&mut sys, &mut x, &mut v).unwrap_err();
-    assert!(matches!(err, SolverError::Unstable { .. }), "{err}");
-    assert_eq!(plastic(&sys), before, "explicit: plastic state set back");
-    assert_eq!((&x, &v, explicit.time()), (&x0, &v0, 1e-3));
+            fail_after: if case == "fail" { 11 } else { usize::MAX },
+            raise_at: (case == "stop").then(|| (11, stop.clone())),
+        });
+        explicit.set_stop(Some(stop.clone()));
+        let before = plastic(&sys);
+        assert!(before.1 > 0.0);
+        let (x0, v0) = (x.clone(), v.clone());
+        let err = explicit.advance(&mut sys, &mut x, &mut v).unwrap_err();
+        match case {
+            "fail" => assert!(matches!(err, SolverError::Unstable { .. }), "{err}"),
+            _ => {
+                assert!(matches!(err, SolverError::Interrupted { .. }), "{err}");
+                assert_eq!(
+                    err.stats().iterations,
+                    0,
+                    "no Newton work in an explicit frame"
+                );
+            }
+        }
+        assert_eq!(
+            plastic(&sys),
+            before,
+            "explicit {case}: plastic state set back"
+        );
+        assert_eq!((&x, &v, explicit.time()), (&x0, &v0, 1e-3), "{case}");
+        if case == "stop" {
+            // The flag down, the frame again: bitwise the frame of a run that was never stopped (whose
+            // second frame yields further, so the interrupted one had something to set back).
+            stop.store(false, Ordering::SeqCst);
+            explicit.advance(&mut sys, &mut x, &mut v).unwrap();
+            let (mut twin, mut twin_explicit, mut tx, mut tv) = explicit_run(EndHook {
+                ends: 0,
+                fail_after: usize::MAX,
+                raise_at: None,
+            });
+            twin_explicit.advance(&mut twin, &mut tx, &mut tv).unwrap();
+            assert!(plastic(&twin).1 > before.1);
+            assert_eq!((&x, &v), (&tx, &tv));
+            assert_eq!(plastic(&sys), plastic(&twin));
+            // Raised before a frame: it ends at once, nothing moved.
+            stop.store(true, Ordering::SeqCst);
+            let (x1, v1, p1) = (x.clone(), v.clone(), plastic(&sys));
+            let err = explicit.advance(&mut sys, &mut x, &mut v).unwrap_err();
+            assert!(matches!(err, SolverError::Interrupted { .. }), "{err}");
+            assert_eq!((&x, &v, plastic(&sys)), (&x1, &v1, p1));
+            assert_eq!(explicit.time(), 2e-3);
+        }
+    }
 }

@@ -1686,6 +1686,83 @@ impl hinge_solver::newton::Objective for RaisesStop<'_> {
     }
 }
 
+/// A Newton observer sees every accepted iteration: its count, F and ‖∇F‖ at the new iterate and the step
+/// (the entries the statistics record, bitwise), ending at the minimiser's energy evaluated anew; and it
+/// changes nothing: the same iterates with and without it, and in an implicit Euler step F includes the
+/// inertia term.
+#[test]
+fn a_newton_observer_sees_each_accepted_iteration_and_changes_nothing() {
+    use hinge_solver::newton::IterationReport;
+    use std::sync::{Arc, Mutex};
+    let (rest, mut sys, pins) = thin_strip();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-9,
+        max_iterations: 2000,
+        ..NewtonParams::default()
+    };
+    let mut plain = Newton::new(&sys, &pins, default_solver(), params.clone()).unwrap();
+    let mut reference = rest.positions().to_vec();
+    let full = plain.minimize(&mut sys, &mut reference, None).unwrap();
+    let seen: Arc<Mutex<Vec<IterationReport>>> = Arc::default();
+    let sink = seen.clone();
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+    newton.set_observer(Some(Box::new(move |r: &IterationReport| {
+        sink.lock().unwrap().push(*r)
+    })));
+    let mut x = rest.positions().to_vec();
+    let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+    assert_eq!((stats.iterations, &x), (full.iterations, &reference));
+    let seen = seen.lock().unwrap().clone();
+    assert_eq!(seen.len(), stats.iterations);
+    // Damped steps on the way, full ones at the end; no shift beyond the largest the statistics record.
+    assert!(seen.iter().any(|r| r.step_length < 1.0));
+    assert_eq!(seen.last().unwrap().step_length, 1.0);
+    assert!(seen.iter().all(|r| r.shift <= stats.max_shift));
+    for (k, r) in seen.iter().enumerate() {
+        assert_eq!(r.iteration, k + 1);
+        assert_eq!(
+            r.gradient_norm.to_bits(),
+            stats.gradient_norms[k + 1].to_bits()
+        );
+        assert_eq!(r.step_norm.to_bits(), stats.step_norms[k].to_bits());
+        assert!(r.step_length > 0.0 && !r.definite);
+    }
+    let start = sys
+        .evaluate(rest.positions(), Request::VALUE, Parallelism::Sequential)
+        .unwrap()
+        .energy;
+    let end = sys
+        .evaluate(&x, Request::VALUE, Parallelism::Sequential)
+        .unwrap()
+        .energy;
+    let last = seen.last().unwrap().energy;
+    assert!((last - end).abs() <= 1e-12 * end.abs(), "{last} vs {end}");
+    assert!(end < start && seen.iter().all(|r| r.energy < start));
+    // A time step: F = E + the inertia term ‖x − x̂‖²_M / (2Δt²) > E at the step's end.
+    let (mut hs, mut stepper, mut y, mut v) = hard_stepper(20, 0.05);
+    let energies: Arc<Mutex<Vec<f64>>> = Arc::default();
+    let sink = energies.clone();
+    stepper
+        .newton_mut()
+        .set_observer(Some(Box::new(move |r: &IterationReport| {
+            sink.lock().unwrap().push(r.energy)
+        })));
+    let (mut hs2, mut twin, mut y2, mut v2) = hard_stepper(20, 0.05);
+    let frame = stepper
+        .advance(&mut hs, &mut y, &mut v, SubstepPolicy::default())
+        .unwrap();
+    twin.advance(&mut hs2, &mut y2, &mut v2, SubstepPolicy::default())
+        .unwrap();
+    assert_eq!((&y, &v), (&y2, &v2));
+    let energies = energies.lock().unwrap().clone();
+    assert_eq!(energies.len(), frame.newton.iterations);
+    let e_end = hs
+        .evaluate(&y, Request::VALUE, Parallelism::Sequential)
+        .unwrap()
+        .energy;
+    assert!(*energies.last().unwrap() > e_end, "{energies:?} vs {e_end}");
+}
+
 /// A stop flag ends a solve before its next iteration with the positions untouched and the work counted
 /// (raised mid-solve by the objective itself); a frame of implicit Euler is abandoned at once, without
 /// smaller substeps, its state restored; a continuation ends with every stage's count and the parameter
