@@ -962,9 +962,9 @@ impl System {
     /// `request`): its energy, gradient and Hessian must be finite. The check is a pass over the outputs
     /// (integer operations on the exponent bits, which vectorize); only when it fails are the terms
     /// evaluated again one at a time, to name the first whose own output is not finite and the vertex of
-    /// its first non-finite entry. [`System::evaluate_into`] and [`System::evaluate`] end with it, so no evaluation
-    /// returns a NaN or an infinity (an energy's stiffness or a load can overflow f64 where each input is
-    /// finite); it is public for outputs assembled otherwise.
+    /// its first non-finite entry. [`System::evaluate_into`] and [`System::evaluate`] end with it, so no
+    /// evaluation returns a NaN or an infinity (an energy's stiffness or a load can overflow f64 where each
+    /// input is finite); it is public for outputs assembled otherwise.
     ///
     /// # Errors
     /// [`EvalError::AtElement`] naming the term and the vertex; [`EvalError::NonFiniteTotal`] when no
