@@ -246,6 +246,55 @@ pub(crate) fn detached<R: Send>(py: Python<'_>, f: impl FnOnce() -> R + Send) ->
     })
 }
 
+/// How often [`interruptible`] lets Python look for Ctrl-C.
+const SIGNAL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Runs `f(stop)` without the GIL (on the pool [`detached`] would use) on a worker thread, while this
+/// thread lets Python check its signals every [`SIGNAL_POLL`]: when a check raises (Ctrl-C's
+/// `KeyboardInterrupt`, or whatever a Python signal handler raises), `stop` is raised, which the solvers
+/// read before each Newton iteration (and the explicit integrator before each substep), and `f` is waited
+/// for. Returns `f`'s result and the exception, for the caller to raise once its state is consistent (a
+/// solve that saw the flag has left its state untouched; one that finished first has committed it).
+/// Long calls (static solves, time steps, whole scenes) use it: without it Ctrl-C waited for them to end.
+pub(crate) fn interruptible<R: Send>(
+    py: Python<'_>,
+    f: impl FnOnce(&std::sync::Arc<std::sync::atomic::AtomicBool>) -> R + Send,
+) -> (R, Option<PyErr>) {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::mpsc::{RecvTimeoutError, channel};
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let pool = POOLS.with(|p| p.borrow().last().cloned());
+    py.detach(|| {
+        std::thread::scope(|scope| {
+            let (done, finished) = channel::<()>();
+            let flag = &stop;
+            let worker = scope.spawn(move || {
+                let r = match pool {
+                    Some(p) => p.install(|| f(flag)),
+                    None => f(flag),
+                };
+                // The receiver outlives the worker: it is waited for below.
+                let _ = done.send(());
+                r
+            });
+            let mut signal = None;
+            // Until the worker is done (or panicked: the join below passes the panic on).
+            while let Err(RecvTimeoutError::Timeout) = finished.recv_timeout(SIGNAL_POLL) {
+                if signal.is_none()
+                    && let Err(e) = Python::attach(|py| py.check_signals())
+                {
+                    stop.store(true, Ordering::SeqCst);
+                    signal = Some(e);
+                }
+            }
+            match worker.join() {
+                Ok(r) => (r, signal),
+                Err(panic) => std::panic::resume_unwind(panic),
+            }
+        })
+    })
+}
+
 /// Opens a `hinge.threads(n)` context on this thread: the calls of the package run on `n` threads until
 /// the matching [`pop_threads`].
 #[pyfunction]

@@ -31,7 +31,9 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::{detached, mesh_from, parse_hessian, parse_method, psi_spec, value_error};
+use crate::{
+    detached, interruptible, mesh_from, parse_hessian, parse_method, psi_spec, value_error,
+};
 
 /// One term of a system, as specified (built into energies when the system is used).
 #[derive(Clone)]
@@ -653,7 +655,7 @@ pub fn solve_static<'py>(
     let Some((sys, _, _)) = &mut system.built else {
         return Err(value_error("system not built"));
     };
-    let r = detached(py, || -> Result<NewtonStats, String> {
+    let (r, signal) = interruptible(py, |stop| -> Result<NewtonStats, String> {
         let (parameters, stages) = if membrane_continuation {
             continuation(terms, sys, rest)?
         } else {
@@ -662,9 +664,14 @@ pub fn solve_static<'py>(
         let parameters: Vec<&str> = parameters.iter().map(String::as_str).collect();
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
+        newton.set_stop(Some(stop.clone()));
         minimize_continued_all(&mut newton, sys, &mut x, &parameters, &stages)
             .map_err(|e| format!("static solve: {e}"))
     });
+    // Ctrl-C: the solve ended with the system's parameters set back; nothing is returned.
+    if let Some(e) = signal {
+        return Err(e);
+    }
     let stats = r.map_err(value_error)?;
     Ok((to_array(py, &x)?, stats_dict(py, &stats)?))
 }
@@ -825,7 +832,8 @@ impl PyStepper {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
         let mut guard = self.lock()?;
         let st: &mut StepState = &mut guard;
-        let r = detached(py, || {
+        let (r, signal) = interruptible(py, |stop| {
+            st.stepper.newton_mut().set_stop(Some(stop.clone()));
             st.stepper
                 .advance(
                     &mut st.system,
@@ -835,8 +843,15 @@ impl PyStepper {
                 )
                 .map_err(|e| e.to_string())
         });
+        // Ctrl-C: a frame that saw it is undone (state and time as before the call); one that finished
+        // first is kept, and the interrupt is raised after it.
+        if r.is_ok() {
+            st.time += st.stepper.dt;
+        }
+        if let Some(e) = signal {
+            return Err(e);
+        }
         let fs = r.map_err(value_error)?;
-        st.time += st.stepper.dt;
         let d = stats_dict(py, &fs.newton)?;
         d.set_item("substeps", fs.substeps)?;
         d.set_item("max_final_gradient_norm", fs.max_final_gradient_norm)?;
@@ -897,10 +912,16 @@ pub fn run_scene<'py>(
         )));
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
-    let summary = detached(py, || {
-        hinge_cli::run::simulate(&sc, &rest, None, |_, _, _, x| xs.push(x.to_vec()))
-    })
-    .map_err(value_error)?;
+    let (summary, signal) = interruptible(py, |stop| {
+        hinge_cli::run::simulate_until(&sc, &rest, None, Some(stop), None, |_, _, _, x| {
+            xs.push(x.to_vec())
+        })
+    });
+    // Ctrl-C ends the run after the frame it is in (or at its next Newton iteration) and raises here.
+    if let Some(e) = signal {
+        return Err(e);
+    }
+    let summary = summary.map_err(value_error)?;
     let flat: Vec<f64> = xs
         .iter()
         .flat_map(|f| f.iter().flat_map(|p| [p.x, p.y, p.z]))
