@@ -1081,7 +1081,7 @@ pub fn fit<'py>(
         max_iterations,
         ..FitOptions::default()
     };
-    let r = detached(py, || -> Result<(FitResult, usize), String> {
+    let (r, signal) = interruptible(py, |stop| -> Result<(FitResult, usize), String> {
         let (parameters, stages) = if membrane_continuation {
             continuation(&terms, sys, &rest)?
         } else {
@@ -1090,6 +1090,7 @@ pub fn fit<'py>(
         let parameters: Vec<&str> = parameters.iter().map(String::as_str).collect();
         let mut newton = Newton::new(sys, &pins, Box::new(FaerLlt::default()), params)
             .map_err(|e| e.to_string())?;
+        newton.set_stop(Some(stop.clone()));
         // The first equilibrium through the continuation; the fit's solves start from it.
         let start = continued_start_all(&mut newton, sys, &mut x, &parameters, &stages);
         let loss = TargetLoss::all(target);
@@ -1100,6 +1101,10 @@ pub fn fit<'py>(
             .map_err(|e| e.to_string())?;
         Ok((r, start))
     });
+    // Ctrl-C: the fit ended with the start values set back; nothing is recorded.
+    if let Some(e) = signal {
+        return Err(e);
+    }
     let (r, start) = r.map_err(value_error)?;
     for (name, v) in parameters.iter().zip(&r.values) {
         system.record(name, v.clone());

@@ -860,11 +860,13 @@ impl<'a> Fit<'a> {
     /// equilibrium; on success it holds the fitted equilibrium, and the system the fitted parameters).
     /// Every evaluation solves the equilibrium from the last accepted one (warm start). A trial whose
     /// equilibrium fails to converge counts as a failed line-search step (the step is halved); a failure
-    /// at the start is an error.
+    /// at the start is an error, and so is a solve stopped by the Newton solver's stop flag
+    /// ([`Newton::set_stop`]): the fit ends at once.
     ///
     /// # Errors
     /// [`AdjointError`]: the first equilibrium fails, the Hessian at an equilibrium is not positive
-    /// definite, evaluation errors. On error the system holds the start values.
+    /// definite, evaluation errors, [`SolverError::Interrupted`] (as [`AdjointError::Equilibrium`]). On
+    /// error the system holds the start values.
     pub fn run(
         &mut self,
         system: &mut System,
@@ -938,6 +940,11 @@ impl<'a> Fit<'a> {
                             x: xt,
                         });
                         break;
+                    }
+                    // A stop request ends the fit, not just this trial.
+                    Err(e @ AdjointError::Equilibrium(SolverError::Interrupted { .. })) => {
+                        restore(self, system);
+                        return Err(e);
                     }
                     Ok(_)
                     | Err(AdjointError::Equilibrium(_))

@@ -837,6 +837,87 @@ fn fitting_recovers_young_s_modulus_of_a_cantilever() {
     assert_eq!(system.parameter("membrane.young").unwrap(), vec![y]);
 }
 
+/// A raised stop flag ([`Newton::set_stop`]) ends a fit at its next equilibrium: the error is the
+/// interruption (not a halved line-search step, as for a solve that does not converge), and the system
+/// holds the start values again.
+#[test]
+fn a_stop_request_ends_a_fit_with_the_start_values_restored() {
+    use hinge_solver::newton::SolverError;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let truth = 2e8;
+    let c = cantilever(
+        grid(16, 2, 0.3, 0.05, Diagonal::Alternating).unwrap(),
+        0.3 / 16.0,
+        truth,
+    );
+    let mut system = cantilever_system(&c, false);
+    let mut newton = tight_newton(&system, &c.pins);
+    let mut target = c.rest.positions().to_vec();
+    newton.minimize(&mut system, &mut target, None).unwrap();
+    let start = 3.0 * truth;
+    let c = Cantilever { young: start, ..c };
+    let mut system = cantilever_system(&c, false);
+    let before = (
+        system.parameter("bending.k").unwrap(),
+        system.parameter("membrane.young").unwrap(),
+    );
+    let mut newton = tight_newton(&system, &c.pins);
+    let flag = Arc::new(AtomicBool::new(false));
+    newton.set_stop(Some(flag.clone()));
+    let variable = FitVariable {
+        name: "material.young".into(),
+        start: vec![start],
+        positive: true,
+        links: vec![
+            Link::Power {
+                parameter: "bending.k".into(),
+                exponent: 1.0,
+            },
+            Link::Power {
+                parameter: "membrane.young".into(),
+                exponent: 1.0,
+            },
+        ],
+    };
+    let loss = TargetLoss::all(target);
+    let mut x = c.rest.positions().to_vec();
+    let x0 = x.clone();
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![variable],
+        FitOptions::default(),
+    )
+    .unwrap();
+    // Raised after the first accepted L-BFGS iteration (the full fit takes several).
+    let raise = flag.clone();
+    fit.observe(move |p| {
+        if p.iteration == 1 {
+            raise.store(true, Ordering::SeqCst);
+        }
+    });
+    let err = fit
+        .run(&mut system, &mut x, &mut |x, g| loss.evaluate(x, g))
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            AdjointError::Equilibrium(SolverError::Interrupted { .. })
+        ),
+        "{err}"
+    );
+    assert_eq!(x, x0);
+    assert_eq!(
+        (
+            system.parameter("bending.k").unwrap(),
+            system.parameter("membrane.young").unwrap()
+        ),
+        before
+    );
+}
+
 #[test]
 fn young_s_modulus_and_thickness_together_are_reported_not_identifiable() {
     let c = cantilever(
