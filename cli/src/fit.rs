@@ -252,6 +252,26 @@ pub fn fit_scene(
     options: FitOptions,
     names: Option<&FileNumbering>,
 ) -> Result<Fitted, String> {
+    fit_scene_until(scene, rest, target, target_name, keys, options, names, None)
+}
+
+/// [`fit_scene`] that ends when `stop` is raised (another thread, a Ctrl-C handler): the equilibrium
+/// solves read it before each Newton iteration ([`Newton::set_stop`]) and the fit then fails with an
+/// `interrupted` message.
+///
+/// # Errors
+/// As [`fit_scene`].
+#[allow(clippy::too_many_arguments)]
+pub fn fit_scene_until(
+    scene: &Scene,
+    rest: &TriMesh,
+    target: &TriMesh,
+    target_name: &str,
+    keys: &[String],
+    options: FitOptions,
+    names: Option<&FileNumbering>,
+    stop: Option<&std::sync::Arc<std::sync::atomic::AtomicBool>>,
+) -> Result<Fitted, String> {
     crate::files::check_same_mesh(rest, target, None, target_name)?;
     let b = build(scene, rest, false)?;
     let mut variables = Vec::new();
@@ -281,6 +301,7 @@ pub fn fit_scene(
         ..params
     };
     let mut newton = Newton::new(&system, &pins, solver, params).map_err(|e| e.to_string())?;
+    newton.set_stop(stop.cloned());
     let loss = TargetLoss::all(target.positions().to_vec());
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
@@ -571,5 +592,25 @@ mod tests {
         }
         println!("Newton iterations of the fit with / without the continuation: {counts:?}");
         assert!(2 * counts[0] < counts[1], "{counts:?}");
+        // A raised stop flag: the fit ends with the interruption, no values (the same scene fits without
+        // it, above).
+        let flag = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+        let mut scene = truth.clone();
+        scene.material.young = 2e10;
+        let err = super::fit_scene_until(
+            &scene,
+            &rest,
+            &target,
+            "target",
+            &["material.young".to_string()],
+            FitOptions::default(),
+            None,
+            Some(&flag),
+        )
+        .unwrap_err();
+        assert!(
+            err.starts_with("equilibrium: interrupted after 0 iterations"),
+            "{err}"
+        );
     }
 }

@@ -1175,10 +1175,22 @@ pub fn fit_scene<'py>(
         smoothness,
         ..FitOptions::default()
     };
-    let r = detached(py, || {
-        hinge_cli::fit::fit_scene(&sc, &rest, &target_mesh, &name, &keys, options, None)
-    })
-    .map_err(value_error)?;
+    let (r, signal) = interruptible(py, |stop| {
+        hinge_cli::fit::fit_scene_until(
+            &sc,
+            &rest,
+            &target_mesh,
+            &name,
+            &keys,
+            options,
+            None,
+            Some(stop),
+        )
+    });
+    if let Some(e) = signal {
+        return Err(e);
+    }
+    let r = r.map_err(value_error)?;
     let names: Vec<String> = r.values.iter().map(|(k, _)| k.clone()).collect();
     let values: Vec<Vec<f64>> = r.values.iter().map(|(_, v)| v.clone()).collect();
     let info = fit_info(
