@@ -1060,9 +1060,13 @@ def test_mesh_files_read_and_write_in_every_format(tmp_path):
 
 def test_ctrl_c_ends_long_calls_with_keyboard_interrupt_and_the_state_kept():
     import _thread
+    import signal
 
     def interrupted(call, after):
         timer = threading.Timer(after, _thread.interrupt_main)
+        # Python's own Ctrl-C handler: a process started with SIGINT ignored (a background job of a
+        # script, as CI may run this) has none, and interrupt_main then does nothing.
+        handler = signal.signal(signal.SIGINT, signal.default_int_handler)
         timer.start()
         t = time.monotonic()
         try:
@@ -1071,6 +1075,7 @@ def test_ctrl_c_ends_long_calls_with_keyboard_interrupt_and_the_state_kept():
         finally:
             timer.cancel()
             timer.join()
+            signal.signal(signal.SIGINT, handler)
         # Before, the call ran to its end (minutes); now it ends within a Newton iteration.
         return time.monotonic() - t
 

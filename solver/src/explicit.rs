@@ -186,6 +186,7 @@ impl SymplecticEuler {
         // What a failed frame sets back besides `x` and `v`: the damping terms' previous positions (and
         // the system's step state they set) and what the substeps' ends changed (plastic rest angles).
         let prev0 = self.prev.clone();
+        let done0 = self.substeps_done;
         system.mark_step_state();
         let restore =
             |me: &mut Self, system: &mut System, x: &mut [Vector3<f64>], v: &mut [Vector3<f64>]| {
@@ -199,6 +200,8 @@ impl SymplecticEuler {
                 }
                 let _ = system.rewind_step_state();
                 me.prev.clone_from(&prev0);
+                // Substeps are numbered over the run (in messages): the undone ones do not count.
+                me.substeps_done = done0;
             };
         let mut targets = Vec::new();
         for k in 0..self.substeps {
