@@ -124,6 +124,14 @@ fn check_finite(x: &[f64]) -> Result<(), LinearError> {
 /// faer's sparse supernodal/simplicial LLᵀ with the symbolic analysis reused across factorizations (the
 /// default backend). The factor's storage and faer's work space are kept too: once the first
 /// factorization has run, neither factoring nor solving allocates.
+///
+/// It factors on the calling thread ([`FaerLlt::default`]): faer's rayon-parallel factorization allocates
+/// its task bookkeeping on every call (about 800 allocations per factorization of the drape's Hessian)
+/// and was slower on the built-in scenes on this project's 2-core VM (drape 6.2–7.1 s against 5.6–5.7 s
+/// sequential; 15 frames of `shell-drop` 15.0–15.5 s against 12.6–13.9 s; one factorization of 121 203
+/// unknowns 1 576 ms against 1 378 ms). [`FaerLlt::parallel`] uses
+/// faer's global parallelism (rayon's pool) instead, for large meshes on many cores. Either way the
+/// results do not depend on the thread count.
 #[derive(Default)]
 pub struct FaerLlt {
     pattern: Option<LowerCsc>,
@@ -132,6 +140,27 @@ pub struct FaerLlt {
     factored: bool,
     stack: Option<MemBuffer>,
     analyses: usize,
+    parallel: bool,
+}
+
+impl FaerLlt {
+    /// A factorization that runs on faer's global parallelism (`faer::get_global_parallelism`, rayon's
+    /// pool by default): for large meshes on many cores. It allocates faer's task bookkeeping on every
+    /// factorization.
+    pub fn parallel() -> Self {
+        Self {
+            parallel: true,
+            ..Self::default()
+        }
+    }
+
+    fn par(&self) -> faer::Par {
+        if self.parallel {
+            faer::get_global_parallelism()
+        } else {
+            faer::Par::Seq
+        }
+    }
 }
 
 impl std::fmt::Debug for FaerLlt {
@@ -140,6 +169,7 @@ impl std::fmt::Debug for FaerLlt {
             .field("n", &self.pattern.as_ref().map(|p| p.n))
             .field("factored", &self.factored)
             .field("analyses", &self.analyses)
+            .field("parallel", &self.parallel)
             .finish()
     }
 }
@@ -160,7 +190,7 @@ impl LinearSolver for FaerLlt {
         let symbolic =
             factorize_symbolic_cholesky(sym, Side::Lower, Default::default(), Default::default())
                 .map_err(|e| LinearError::Faer(format!("{e:?}")))?;
-        let par = faer::get_global_parallelism();
+        let par = self.par();
         self.stack = Some(MemBuffer::new(
             symbolic
                 .factorize_numeric_llt_scratch::<f64>(par, Default::default())
@@ -174,6 +204,7 @@ impl LinearSolver for FaerLlt {
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        let par = self.par();
         let (Some(p), Some(s), Some(stack)) = (&self.pattern, &self.symbolic, &mut self.stack)
         else {
             return Err(LinearError::Usage("factor before analyze".into()));
@@ -193,7 +224,7 @@ impl LinearSolver for FaerLlt {
             SparseColMatRef::new(sym, values),
             Side::Lower,
             Default::default(),
-            faer::get_global_parallelism(),
+            par,
             MemStack::new(stack),
             Default::default(),
         ) {
@@ -208,6 +239,7 @@ impl LinearSolver for FaerLlt {
     }
 
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
+        let par = self.par();
         let (Some(s), Some(stack), true) = (&self.symbolic, &mut self.stack, self.factored) else {
             return Err(LinearError::Usage(
                 "solve before a successful factor".into(),
@@ -223,7 +255,7 @@ impl LinearSolver for FaerLlt {
         LltRef::new(s, &self.factor).solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(rhs, n, 1),
-            faer::get_global_parallelism(),
+            par,
             MemStack::new(stack),
         );
         check_finite(rhs)

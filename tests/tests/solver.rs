@@ -68,6 +68,7 @@ fn backends_agree_on_spd_systems() {
     dense.solve(&mut reference).unwrap();
     let mut backends: Vec<Box<dyn LinearSolver>> = vec![
         Box::new(FaerLlt::default()),
+        Box::new(FaerLlt::parallel()),
         Box::new(FaerLu::default()),
         Box::new(PcgJacobi::new(1e-12, 10_000)),
         Box::new(ChebyshevJacobi::new(1e-12, 100_000)),

@@ -1,0 +1,109 @@
+//! Newton allocates nothing per iteration (issue "Newton and time stepping …", item 2), checked on the
+//! scene a new user runs first: the built-in drape, with the energies, solver and parameters `hinge run`
+//! builds for it.
+//!
+//! A counting global allocator sees every allocation of this test binary. It holds this one test only, so
+//! no other test's allocations mix in (the frames are stepped on the calling thread and on rayon's
+//! workers, all counted). Frames whose Newton solves take from 2 to 30 iterations must allocate the same:
+//! what a frame allocates (its start and velocity copies, the solve's histories) does not grow with its
+//! iterations, factorizations or line-search trials.
+
+// A global allocator is an `unsafe impl`: the measurement is the reason (see the SAFETY comments).
+#![allow(unsafe_code)]
+
+use std::alloc::{GlobalAlloc, Layout, System as SystemAlloc};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use hinge_cli::run::{Built, build};
+use hinge_core::nalgebra::Vector3;
+use hinge_solver::newton::{ImplicitEuler, SubstepPolicy};
+
+/// The system allocator, counting allocations and reallocations.
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: every method forwards its arguments unchanged to the system allocator, which meets
+// `GlobalAlloc`'s contract; the counter is an atomic and allocates nothing.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's layout, under the caller's guarantees (non-zero size).
+        unsafe { SystemAlloc.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: as for `alloc`.
+        unsafe { SystemAlloc.alloc_zeroed(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from this allocator (so from the system's) with this layout.
+        unsafe { SystemAlloc.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: as for `dealloc`, with the caller's non-zero `new_size`.
+        unsafe { SystemAlloc.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn newton_allocates_nothing_per_iteration_on_the_drape() {
+    let (scene, _) = hinge_cli::scene::load("drape").unwrap();
+    let rest = scene.rest_mesh(None).unwrap();
+    let Built {
+        mut system,
+        masses,
+        pins,
+        solver,
+        params,
+        ..
+    } = build(&scene, &rest, true).unwrap();
+    let mut stepper = ImplicitEuler::new(&system, scene.dt, masses, pins, solver, params).unwrap();
+    let mut x = rest.positions().to_vec();
+    let mut v = vec![Vector3::zeros(); x.len()];
+    let policy = SubstepPolicy {
+        max_halvings: scene.solver.max_substep_halvings,
+    };
+    // Per frame: (allocations, Newton iterations, factorizations, line-search trials, substeps).
+    let mut frames = Vec::new();
+    for _ in 0..40 {
+        let before = ALLOCATIONS.load(Ordering::SeqCst);
+        let fs = stepper
+            .advance(&mut system, &mut x, &mut v, policy)
+            .unwrap();
+        let allocations = ALLOCATIONS.load(Ordering::SeqCst) - before;
+        frames.push((
+            allocations,
+            fs.newton.iterations,
+            fs.newton.factorizations,
+            fs.newton.line_search_steps,
+            fs.substeps,
+        ));
+    }
+    println!("(allocations, iterations, factorizations, line-search trials, substeps) per frame:");
+    for (k, f) in frames.iter().enumerate() {
+        println!("frame {:2}: {f:?}", k + 1);
+    }
+    // The first frames set up the reused buffers; from the third on, every frame is one substep.
+    let steady = &frames[2..];
+    assert!(steady.iter().all(|f| f.4 == 1), "{steady:?}");
+    let (fewest, most) = steady
+        .iter()
+        .fold((usize::MAX, 0), |(lo, hi), f| (lo.min(f.1), hi.max(f.1)));
+    assert!(
+        fewest <= 4 && most >= 15,
+        "the frames span easy and hard solves: {fewest}..{most}"
+    );
+    let allocations = steady[0].0;
+    assert!(
+        steady.iter().all(|f| f.0 == allocations),
+        "allocations per frame differ: {steady:?}"
+    );
+}
