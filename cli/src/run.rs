@@ -1366,6 +1366,78 @@ mod tests {
         );
     }
 
+    /// A Newton step of the shell's implicit Euler (contact with the plane, a closed mesh of 7 686
+    /// unknowns) gives the same bits in pools of 1 and 2 threads with the default linear solver. faer's
+    /// rayon-parallel factorization (`FaerLlt::parallel`, the default before) does not on this matrix
+    /// (printed), which made `hinge run shell-drop` depend on `--threads`.
+    #[test]
+    fn a_shell_drop_step_gives_the_same_bits_on_any_thread_count() {
+        use hinge_core::nalgebra::Vector3;
+        use hinge_solver::linear::{FaerLlt, LinearSolver};
+        use hinge_solver::newton::{Inertia, Newton};
+        let (scene, _) = load("shell-drop").unwrap();
+        let rest = scene.rest_mesh(None).unwrap();
+        let step = |threads: usize, parallel: bool| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let b = build(&scene, &rest, true).unwrap();
+                let mut system = b.system;
+                let solver: Box<dyn LinearSolver> = if parallel {
+                    Box::new(FaerLlt::parallel())
+                } else {
+                    Box::new(FaerLlt::default())
+                };
+                // One Newton step (a factorization of the contact-stiffened, shifted Hessian) shows it.
+                let params = hinge_solver::newton::NewtonParams {
+                    single_iteration: true,
+                    ..b.params
+                };
+                let mut newton = Newton::new(&system, &b.pins, solver, params).unwrap();
+                // Squashed onto the plane at 3 m/s: contact, folds, shifted steps.
+                let low = rest
+                    .positions()
+                    .iter()
+                    .map(|p| p.z)
+                    .fold(f64::INFINITY, f64::min);
+                let x0: Vec<_> = rest
+                    .positions()
+                    .iter()
+                    .map(|p| Vector3::new(p.x, p.y, low + 0.6 * (p.z - low) - 0.02))
+                    .collect();
+                let inertia = Inertia {
+                    masses: b.masses.clone(),
+                    x_hat: x0
+                        .iter()
+                        .map(|p| p + Vector3::new(0.0, 0.0, -3.0) * scene.dt)
+                        .collect(),
+                    dt: scene.dt,
+                };
+                let mut x = x0.clone();
+                let st = newton
+                    .minimize(&mut system, &mut x, Some(&inertia))
+                    .unwrap();
+                (x, st.iterations, st.factorizations)
+            })
+        };
+        let (one, two) = (step(1, false), step(2, false));
+        assert!(one == two, "{:?} vs {:?}", (one.1, one.2), (two.1, two.2));
+        println!("default: {:?}", (one.1, one.2));
+        let (p1, p2) = (step(1, true), step(2, true));
+        println!(
+            "faer's parallel factorization, 1 and 2 threads: {} {:?} {:?}",
+            if p1 == p2 {
+                "the same bits"
+            } else {
+                "different bits"
+            },
+            (p1.1, p1.2),
+            (p2.1, p2.2)
+        );
+    }
+
     fn continued_and_plain_agree(membrane: &str) {
         let mut results = Vec::new();
         for on in [true, false] {
