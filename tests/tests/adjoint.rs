@@ -789,9 +789,10 @@ fn fit_to(
     r
 }
 
-#[test]
-fn fitting_recovers_young_s_modulus_of_a_cantilever() {
-    let truth = 2e8;
+/// The cantilever fit of Young's modulus: the equilibrium of `truth` as the target, and the cantilever,
+/// its system, a Newton solver and the fit variable (linked to the bending stiffness and the membrane)
+/// starting 3× too stiff.
+fn young_s_modulus_fit(truth: f64) -> (Cantilever, System, Newton, FitVariable, Vec<Vector3<f64>>) {
     let c = cantilever(
         grid(16, 2, 0.3, 0.05, Diagonal::Alternating).unwrap(),
         0.3 / 16.0,
@@ -801,11 +802,11 @@ fn fitting_recovers_young_s_modulus_of_a_cantilever() {
     let mut newton = tight_newton(&system, &c.pins);
     let mut target = c.rest.positions().to_vec();
     newton.minimize(&mut system, &mut target, None).unwrap();
-    // Start 3× too stiff; Young's modulus scales the bending stiffness (plate formula) and the membrane.
+    // Young's modulus scales the bending stiffness (plate formula) and the membrane.
     let start = 3.0 * truth;
     let c = Cantilever { young: start, ..c };
-    let mut system = cantilever_system(&c, false);
-    let mut newton = tight_newton(&system, &c.pins);
+    let system = cantilever_system(&c, false);
+    let newton = tight_newton(&system, &c.pins);
     let variable = FitVariable {
         name: "material.young".into(),
         start: vec![start],
@@ -821,6 +822,13 @@ fn fitting_recovers_young_s_modulus_of_a_cantilever() {
             },
         ],
     };
+    (c, system, newton, variable, target)
+}
+
+#[test]
+fn fitting_recovers_young_s_modulus_of_a_cantilever() {
+    let truth = 2e8;
+    let (c, mut system, mut newton, variable, target) = young_s_modulus_fit(truth);
     let r = fit_to(
         &c,
         &mut system,
@@ -845,41 +853,13 @@ fn a_stop_request_ends_a_fit_with_the_start_values_restored() {
     use hinge_solver::newton::SolverError;
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
-    let truth = 2e8;
-    let c = cantilever(
-        grid(16, 2, 0.3, 0.05, Diagonal::Alternating).unwrap(),
-        0.3 / 16.0,
-        truth,
-    );
-    let mut system = cantilever_system(&c, false);
-    let mut newton = tight_newton(&system, &c.pins);
-    let mut target = c.rest.positions().to_vec();
-    newton.minimize(&mut system, &mut target, None).unwrap();
-    let start = 3.0 * truth;
-    let c = Cantilever { young: start, ..c };
-    let mut system = cantilever_system(&c, false);
+    let (c, mut system, mut newton, variable, target) = young_s_modulus_fit(2e8);
     let before = (
         system.parameter("bending.k").unwrap(),
         system.parameter("membrane.young").unwrap(),
     );
-    let mut newton = tight_newton(&system, &c.pins);
     let flag = Arc::new(AtomicBool::new(false));
     newton.set_stop(Some(flag.clone()));
-    let variable = FitVariable {
-        name: "material.young".into(),
-        start: vec![start],
-        positive: true,
-        links: vec![
-            Link::Power {
-                parameter: "bending.k".into(),
-                exponent: 1.0,
-            },
-            Link::Power {
-                parameter: "membrane.young".into(),
-                exponent: 1.0,
-            },
-        ],
-    };
     let loss = TargetLoss::all(target);
     let mut x = c.rest.positions().to_vec();
     let x0 = x.clone();
