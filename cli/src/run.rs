@@ -469,25 +469,26 @@ pub fn equilibrium_observed(
         };
     let mut summary = RunSummary {
         frames: 0,
-        newton_iterations: stats.iterations,
-        line_search_steps: stats.line_search_steps,
+        newton_iterations: 0,
+        line_search_steps: 0,
         bending_seconds: 0.0,
         other_energy_seconds: 0.0,
-        linear_solve_seconds: stats.factor_seconds + stats.solve_seconds,
+        linear_solve_seconds: 0.0,
         total_seconds: 0.0,
         min_clearance: min_clearance(&obstacles_at(&obstacles, 0.0), &x),
         n_vertices: rest.n_vertices(),
         far_end_drop: far_end_drop(rest, &x),
         max_speed: 0.0,
         final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
-        factorizations: stats.factorizations,
-        definite_iterations: stats.definite_iterations,
+        factorizations: 0,
+        definite_iterations: 0,
         substeps: 0,
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
         interrupted,
         max_plastic_angle: None,
     };
+    summary.add_work(&stats);
     summary.add_timings(&mut system);
     if let Some(o) = out.filter(|_| !interrupted) {
         let name = format!("static.{}", o.format.extension());
@@ -988,7 +989,9 @@ pub const STATIC_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from
 /// A Newton observer for long static solves: after an accepted iteration that ends at least `every` after
 /// the last report (or the observer's creation), `emit` gets one line, `static: I Newton iterations, gradient
 /// norm G, S s`, with I the accepted iterations so far (over every continuation stage), G the latest ‖∇F‖
-/// and S the seconds since the observer was made. `every = 0` reports every iteration.
+/// and S the seconds since the observer was made; during a membrane continuation
+/// ([`membrane_stages`]) the line starts `static: membrane stage k/n, …` (stage n is the solve at the
+/// scene's own stiffness). `every = 0` reports every iteration.
 pub fn static_progress(
     every: std::time::Duration,
     mut emit: impl FnMut(String) + Send + 'static,
@@ -1000,8 +1003,12 @@ pub fn static_progress(
         let now = Instant::now();
         if now.duration_since(last) >= every {
             last = now;
+            let stage = r
+                .stage
+                .map(|(k, n)| format!("membrane stage {k}/{n}, "))
+                .unwrap_or_default();
             emit(format!(
-                "static: {done} Newton iterations, gradient norm {:.2e}, {:.0} s",
+                "static: {stage}{done} Newton iterations, gradient norm {:.2e}, {:.0} s",
                 r.gradient_norm,
                 now.duration_since(start).as_secs_f64()
             ));
@@ -1313,8 +1320,8 @@ mod tests {
     }
 
     /// `hinge run --static`'s progress lines, reporting every iteration (`every = 0`): one per accepted
-    /// Newton iteration of every continuation stage, counting up, the last with the final gradient norm;
-    /// the solve is bitwise the one without an observer.
+    /// Newton iteration of every continuation stage, counting up, each naming its stage, the last with the
+    /// final gradient norm; the solve is bitwise the one without an observer.
     #[test]
     fn static_progress_reports_each_iteration_and_leaves_the_solve_as_it_is() {
         use std::sync::{Arc, Mutex};
@@ -1346,15 +1353,26 @@ mod tests {
         );
         let lines = lines.lock().unwrap();
         assert_eq!(lines.len(), plain.newton_iterations, "{lines:?}");
+        // Each line names its membrane stage: from 1 up, never back, the last at the scene's stiffness.
+        let n = membrane_stages(&scene, &rest).unwrap().len() + 1;
+        let mut stage = 1;
         for (k, line) in lines.iter().enumerate() {
+            while stage < n && !line.starts_with(&format!("static: membrane stage {stage}/{n}, ")) {
+                stage += 1;
+            }
             assert!(
                 line.starts_with(&format!(
-                    "static: {} Newton iterations, gradient norm ",
+                    "static: membrane stage {stage}/{n}, {} Newton iterations, gradient norm ",
                     k + 1
                 )),
                 "{line}"
             );
         }
+        assert!(lines[0].starts_with(&format!("static: membrane stage 1/{n}, ")));
+        assert!(
+            lines[lines.len() - 1].starts_with(&format!("static: membrane stage {n}/{n}, ")),
+            "{lines:?}"
+        );
         let last = lines.last().unwrap();
         assert!(
             last.contains(&format!(

@@ -1563,9 +1563,11 @@ fn ctrl_c_stops_a_static_solve_between_newton_iterations() {
     let header = lines.next().unwrap().unwrap();
     assert!(header.contains("static equilibrium"), "{header}");
     let progress = lines.next().unwrap().unwrap();
+    // `static: [membrane stage k/n, ]I Newton iterations, …`
     let done: u64 = progress
         .strip_prefix("static: ")
-        .and_then(|p| p.split(' ').next())
+        .and_then(|p| p.split(" Newton iterations").next())
+        .and_then(|p| p.rsplit(' ').next())
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{progress}"));
     assert!(

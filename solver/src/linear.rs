@@ -3,9 +3,9 @@
 //! iteration, solve per right-hand side.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::solvers::SolveCore;
+use faer::sparse::linalg::LuError as FaerLuError;
 use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
-use faer::sparse::linalg::solvers::{Lu, SymbolicLu};
+use faer::sparse::linalg::lu::{LuRef, NumericLu, SymbolicLu, factorize_symbolic_lu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use hinge_core::export::CsrLayout;
@@ -267,15 +267,28 @@ impl LinearSolver for FaerLlt {
 }
 
 /// faer's sparse LU with partial pivoting on the full symmetric matrix: for indefinite systems (exact Newton on
-/// an indefinite Hessian). The full pattern is built once at analysis.
-#[derive(Debug, Default)]
+/// an indefinite Hessian). The full pattern, the symbolic analysis and faer's work space are built once at
+/// analysis; the factorization runs on the calling thread, so its results do not depend on the thread count.
+#[derive(Default)]
 pub struct FaerLu {
     /// The full symmetric structure and where each lower value goes in it.
     full: Option<CsrLayout>,
     values: Vec<f64>,
     symbolic: Option<SymbolicLu<usize>>,
-    numeric: Option<Lu<usize, f64>>,
+    numeric: NumericLu<usize, f64>,
+    stack: Option<MemBuffer>,
+    factored: bool,
     analyses: usize,
+}
+
+impl std::fmt::Debug for FaerLu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FaerLu")
+            .field("n", &self.full.as_ref().map(|l| l.row_ptr().len() - 1))
+            .field("factored", &self.factored)
+            .field("analyses", &self.analyses)
+            .finish()
+    }
 }
 
 impl LinearSolver for FaerLu {
@@ -288,37 +301,65 @@ impl LinearSolver for FaerLu {
         let full = CsrLayout::from_lower(p.n, &p.col_ptr, &p.row_idx);
         let sym =
             SymbolicSparseColMatRef::new_checked(p.n, p.n, full.row_ptr(), None, full.col_idx());
-        self.symbolic =
-            Some(SymbolicLu::try_new(sym).map_err(|e| LinearError::Faer(format!("{e:?}")))?);
+        let symbolic = factorize_symbolic_lu(sym, Default::default())
+            .map_err(|e| LinearError::Faer(format!("{e:?}")))?;
+        self.stack = Some(MemBuffer::new(
+            symbolic
+                .factorize_numeric_lu_scratch::<f64>(faer::Par::Seq, Default::default())
+                .or(symbolic.solve_in_place_scratch::<f64>(1, faer::Par::Seq)),
+        ));
+        self.symbolic = Some(symbolic);
         self.values = vec![0.0; full.nnz()];
         self.full = Some(full);
-        self.numeric = None;
+        self.factored = false;
         self.analyses += 1;
         Ok(())
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
-        let (Some(s), Some(full)) = (&self.symbolic, &self.full) else {
+        let (Some(s), Some(full), Some(stack)) = (&self.symbolic, &self.full, &mut self.stack)
+        else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
+        self.factored = false;
         full.scatter(values, &mut self.values)
             .map_err(|e| LinearError::Usage(e.to_string()))?;
         let n = full.row_ptr().len() - 1;
         let sym = SymbolicSparseColMatRef::new_checked(n, n, full.row_ptr(), None, full.col_idx());
-        let mat = SparseColMatRef::new(sym, &self.values);
-        self.numeric =
-            Some(Lu::try_new_with_symbolic(s.clone(), mat).map_err(|_| LinearError::Singular)?);
+        s.factorize_numeric_lu(
+            &mut self.numeric,
+            SparseColMatRef::new(sym, &self.values),
+            faer::Par::Seq,
+            MemStack::new(stack),
+            Default::default(),
+        )
+        .map_err(|e| match e {
+            FaerLuError::SymbolicSingular { .. } => LinearError::Singular,
+            FaerLuError::Generic(e) => LinearError::Faer(format!("{e:?}")),
+        })?;
+        self.factored = true;
         Ok(())
     }
 
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
-        let Some(l) = &self.numeric else {
+        let (Some(s), Some(stack), true) = (&self.symbolic, &mut self.stack, self.factored) else {
             return Err(LinearError::Usage(
                 "solve before a successful factor".into(),
             ));
         };
         let n = rhs.len();
-        l.solve_in_place_with_conj(Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1));
+        if n != s.nrows() {
+            return Err(LinearError::Usage(format!(
+                "right-hand side of length {n} for a matrix of dimension {}",
+                s.nrows()
+            )));
+        }
+        LuRef::new_unchecked(s, &self.numeric).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(rhs, n, 1),
+            faer::Par::Seq,
+            MemStack::new(stack),
+        );
         check_finite(rhs)
     }
 

@@ -76,7 +76,11 @@
 //! direction's predicted decrease `|∇Fᵀd|` is below the rounding of F (see Rounding: no iteration can make
 //! measurable progress, as for stiff strips whose gradient floors at rounding). A diagonal shift, a
 //! Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
-//! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287.
+//! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. In a time
+//! step ([`ImplicitEuler`]) a solve that a step test ends above the gradient tests and above √ε times its
+//! start's gradient, with a last step that moves no coordinate by more than a few units in the last place,
+//! is [`SolverError::Stuck`] and the step
+//! is retried with substeps: such an iterate cannot move (a collapsed triangle) and solves nothing.
 //!
 //! A solve that cannot get closer stops early instead of running to the iteration limit: after
 //! [`STALL_ITERATIONS`] accepted steps in a row that are shorter than [`STALL_STEP`] of the Newton
@@ -357,6 +361,15 @@ pub enum SolverError {
         /// What was done.
         stats: Box<NewtonStats>,
     },
+    /// A time step's solve stopped on a step test with ‖∇F‖ above the gradient tolerance and a last step
+    /// that moved no coordinate by more than a few units in the last place: it stopped where it could not
+    /// move (a collapsed triangle, say), which is no solution of the step
+    /// ([`ImplicitEuler::advance`] retries the step with smaller substeps).
+    #[error("stuck after {} iterations at gradient norm {:e}: its steps no longer move the positions and the gradient is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    Stuck {
+        /// What was done.
+        stats: Box<NewtonStats>,
+    },
     /// The stop flag ([`Newton::set_stop`]) was raised: the solve ended before its next iteration, with the
     /// positions untouched.
     #[error("interrupted after {} iterations", stats.iterations)]
@@ -407,6 +420,7 @@ impl SolverError {
             | SolverError::LineSearch { stats }
             | SolverError::NotConverged { stats }
             | SolverError::Stalled { stats }
+            | SolverError::Stuck { stats }
             | SolverError::Interrupted { stats } => (**stats).clone(),
             SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
         }
@@ -537,6 +551,10 @@ pub struct IterationReport {
     pub shift: f64,
     /// Whether the step used the definite Hessian ([`Globalization::ProjectOnDemand`]).
     pub definite: bool,
+    /// The continuation stage this solve is, `(k, n)` with `k` counted from 1 and the final solve at the
+    /// full parameter being stage `n` ([`crate::statics::minimize_continued`], [`Newton::set_stage`]);
+    /// `None` outside a continuation.
+    pub stage: Option<(usize, usize)>,
 }
 
 /// The callback of [`Newton::set_observer`].
@@ -561,6 +579,8 @@ pub struct Newton {
     stop: Option<Arc<AtomicBool>>,
     /// Called after every accepted iteration ([`Newton::set_observer`]).
     observer: Option<Observer>,
+    /// Passed to the observer ([`Newton::set_stage`]).
+    stage: Option<(usize, usize)>,
 }
 
 impl std::fmt::Debug for Newton {
@@ -605,6 +625,7 @@ impl Newton {
             work: Work::default(),
             stop: None,
             observer: None,
+            stage: None,
         })
     }
 
@@ -628,6 +649,13 @@ impl Newton {
     /// are bitwise the same. `None` removes it.
     pub fn set_observer(&mut self, observer: Option<Observer>) {
         self.observer = observer;
+    }
+
+    /// The continuation stage the following solves belong to, passed to the observer as
+    /// [`IterationReport::stage`] (set by [`crate::statics::minimize_continued`] around its stages and
+    /// cleared after; `None` outside one). It changes nothing else.
+    pub fn set_stage(&mut self, stage: Option<(usize, usize)>) {
+        self.stage = stage;
     }
 
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
@@ -797,6 +825,7 @@ impl Newton {
                     step_length: alpha,
                     shift,
                     definite: step_definite,
+                    stage: self.stage,
                 });
             }
             let largest = alpha * largest_vertex_step(&self.reduced.dofs, &w.d);
@@ -1327,7 +1356,11 @@ impl ImplicitEuler {
                     dt,
                 };
                 let mut next = start;
-                match self.newton.minimize(system, &mut next, Some(&inertia)) {
+                match self
+                    .newton
+                    .minimize(system, &mut next, Some(&inertia))
+                    .and_then(|stats| self.unstuck(stats, &next))
+                {
                     Ok(stats) => Ok((next, stats)),
                     // x̂ itself cannot be evaluated (a hinge carried through the pole of a tan energy, a
                     // vertex onto a sphere's centre): the same step from x, which the last step accepted
@@ -1339,6 +1372,7 @@ impl ImplicitEuler {
                         }
                         let mut stats = self.newton.minimize(system, &mut start, Some(&inertia))?;
                         stats.absorb_counts(&first);
+                        let stats = self.unstuck(stats, &start)?;
                         Ok((start, stats))
                     }
                     Err(e) => Err(e),
@@ -1366,6 +1400,27 @@ impl ImplicitEuler {
                 self.restore_step_state(system);
                 Err(e)
             }
+        }
+    }
+
+    /// A solve's statistics unless it got stuck: it ended on a step test with ‖∇F‖ above the gradient
+    /// tests ([`NewtonParams::converged`] without a step) and above √ε times its start's (a solve at its
+    /// rounding floor has lowered it by more: tight tolerances end there, 7.4 → 9.4e-13 N), and a last
+    /// step that moved no coordinate of `x` by more than a few units in the last place
+    /// (`‖Δx‖ ≤ 4ε · max |x|`). Such an iterate cannot move, and
+    /// it is not the step's solution: on a lumpy closed shell dropped on a plane
+    /// (`docs/shells/closed_meshes.py`, frame 28) a triangle collapsed to an altitude of 1e-14 m, Newton's
+    /// steps shrank to 1e-18 m with ‖∇F‖ = 3.3e5 N, and the frame was accepted. That solve is now a failed
+    /// step, [`SolverError::Stuck`], which [`ImplicitEuler::advance`] retries with smaller substeps. Steps
+    /// that end on a step test above the tolerance while they still move (a stiff beam whose gradient
+    /// floors at rounding, 2.5e-9 N against 1e-9) are accepted as before.
+    fn unstuck(&self, stats: NewtonStats, x: &[Vector3<f64>]) -> Result<NewtonStats, SolverError> {
+        if stuck(&self.newton.params, &stats, x) {
+            Err(SolverError::Stuck {
+                stats: Box::new(stats),
+            })
+        } else {
+            Ok(stats)
         }
     }
 
@@ -1488,9 +1543,68 @@ impl ImplicitEuler {
     }
 }
 
+/// The test of [`ImplicitEuler::unstuck`]: a solve (`stats`, ending at `x`) that is not converged by the
+/// gradient tests, has not lowered ‖∇F‖ below √ε of its start's, and whose last step moved no coordinate
+/// by more than 4 ulps.
+fn stuck(p: &NewtonParams, stats: &NewtonStats, x: &[Vector3<f64>]) -> bool {
+    let first = stats.gradient_norms.first().copied().unwrap_or(0.0);
+    let last = stats.gradient_norms.last().copied().unwrap_or(0.0);
+    let step = stats.step_norms.last().copied().unwrap_or(f64::INFINITY);
+    let size = x.iter().map(|p| p.amax()).fold(0.0, f64::max);
+    !(p.single_iteration
+        || p.converged(last, first, None)
+        || last <= f64::EPSILON.sqrt() * first
+        || step > 4.0 * f64::EPSILON * size)
+}
+
 #[cfg(test)]
 mod tests {
     use super::norm;
+
+    /// The stuck test on the solves that motivated it and on those it must leave alone (their recorded
+    /// gradient and step norms): the lumpy shell's frame 28 (stuck), a plastic hinge and a spring cloth
+    /// solved to their rounding floor with tight tolerances, a stiff beam's step test on a step that moves.
+    #[test]
+    fn only_a_solve_that_cannot_move_and_has_not_converged_is_stuck() {
+        use super::{NewtonParams, NewtonStats, Vector3, stuck};
+        let x = vec![Vector3::new(0.3, -0.7, 1.0); 4];
+        let solve = |g: &[f64], s: &[f64]| NewtonStats {
+            iterations: s.len(),
+            gradient_norms: g.to_vec(),
+            step_norms: s.to_vec(),
+            ..NewtonStats::default()
+        };
+        let p = NewtonParams {
+            gradient_tolerance: 1e-6,
+            ..NewtonParams::default()
+        };
+        let lumpy = solve(
+            &[9.9e5, 324158.6, 1841.3, 334893.6],
+            &[1e-9, 2.3e-15, 5.5e-18],
+        );
+        assert!(stuck(&p, &lumpy, &x));
+        // The same gradients, but the last step still moves: a step test there is left to Newton.
+        assert!(!stuck(&p, &solve(&[9.9e5, 3.3e5], &[1e-13]), &x));
+        // Converged by the gradient: never stuck.
+        assert!(!stuck(&p, &solve(&[9.9e5, 9e-7], &[5.5e-18]), &x));
+        let tight = NewtonParams {
+            gradient_tolerance: 1e-14,
+            ..NewtonParams::default()
+        };
+        let plastic = solve(
+            &[7.44, 1.28e-6, 9.41e-13, 9.41e-13],
+            &[3.1e-4, 5.3e-11, 3.9e-17],
+        );
+        assert!(!stuck(&tight, &plastic, &x));
+        let cloth = solve(&[0.31, 1.2e-10, 9.6e-12], &[1.2e-6, 5.4e-16]);
+        assert!(!stuck(&tight, &cloth, &x));
+        // Baraff–Witkin single iterations are accepted as they are.
+        let single = NewtonParams {
+            single_iteration: true,
+            ..p.clone()
+        };
+        assert!(!stuck(&single, &lumpy, &x));
+    }
 
     #[test]
     fn norms_of_finite_vectors_are_finite() {

@@ -175,19 +175,23 @@ pub fn minimize_continued_all(
     };
     let mut y = x.to_vec();
     let mut stats = NewtonStats::default();
-    for &s in scales {
+    let stages = scales.len() + 1;
+    for (k, &s) in scales.iter().enumerate() {
         for (p, b) in parameters.iter().zip(&base) {
             let scaled: Vec<f64> = b.iter().map(|v| v * s).collect();
             if let Err(e) = system.set_parameter(p, &scaled) {
                 restore(system);
+                newton.set_stage(None);
                 return Err(eval(e));
             }
         }
+        newton.set_stage(Some((k + 1, stages)));
         match newton.minimize(system, &mut y, None) {
             Ok(st) => stats.absorb(&st),
             Err(SolverError::Interrupted { stats: st }) => {
                 // A stop request ends the whole continuation, not just this stage.
                 restore(system);
+                newton.set_stage(None);
                 stats.absorb(&st);
                 return Err(SolverError::Interrupted {
                     stats: Box::new(stats),
@@ -197,7 +201,10 @@ pub fn minimize_continued_all(
         }
     }
     restore(system);
-    let last = match newton.minimize(system, &mut y, None) {
+    newton.set_stage(Some((stages, stages)));
+    let last = newton.minimize(system, &mut y, None);
+    newton.set_stage(None);
+    let last = match last {
         Ok(last) => last,
         Err(SolverError::Interrupted { stats: st }) => {
             stats.absorb(&st);

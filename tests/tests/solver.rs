@@ -113,6 +113,54 @@ fn cholesky_detects_indefinite_matrices_and_lu_solves_them() {
     assert!(rel_error(&ax, &b) < 1e-10);
 }
 
+/// LU on an indefinite system large enough for faer's supernodal path gives the same bits in pools of
+/// one, two and three threads, and solves it (residual, computed here from the matrix).
+#[test]
+fn lu_gives_the_same_bits_on_any_thread_count() {
+    let (red, mut vals) = spd_system_of(40, true);
+    let largest = red.diag.iter().map(|&d| vals[d]).fold(0.0, f64::max);
+    for (i, &d) in red.diag.iter().enumerate() {
+        if i % 5 == 0 {
+            vals[d] -= 1.5 * largest;
+        }
+    }
+    let mut llt = FaerLlt::default();
+    llt.analyze(&red.csc).unwrap();
+    assert!(llt.factor(&vals).is_err(), "the system is indefinite");
+    let mut rng = SplitMix64(17);
+    let b: Vec<f64> = (0..red.csc.n).map(|_| rng.symmetric()).collect();
+    let solve = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut lu = FaerLu::default();
+                lu.analyze(&red.csc).unwrap();
+                lu.factor(&vals).unwrap();
+                let mut x = b.clone();
+                lu.solve(&mut x).unwrap();
+                x
+            })
+    };
+    let one = solve(1);
+    let mut ax = vec![0.0; red.csc.n];
+    red.csc.mul(&vals, &one, &mut ax);
+    assert!(rel_error(&ax, &b) < 1e-10, "{}", rel_error(&ax, &b));
+    for threads in [2, 3] {
+        let x = solve(threads);
+        let differing = x
+            .iter()
+            .zip(&one)
+            .filter(|(a, b)| a.to_bits() != b.to_bits())
+            .count();
+        assert_eq!(
+            differing, 0,
+            "{threads} threads: {differing} entries differ"
+        );
+    }
+}
+
 #[test]
 fn newton_solves_a_quadratic_in_one_step() {
     let rest = cloth(6);
@@ -1726,7 +1774,7 @@ fn a_newton_observer_sees_each_accepted_iteration_and_changes_nothing() {
             stats.gradient_norms[k + 1].to_bits()
         );
         assert_eq!(r.step_norm.to_bits(), stats.step_norms[k].to_bits());
-        assert!(r.step_length > 0.0 && !r.definite);
+        assert!(r.step_length > 0.0 && !r.definite && r.stage.is_none());
     }
     let start = sys
         .evaluate(rest.positions(), Request::VALUE, Parallelism::Sequential)
@@ -1860,4 +1908,24 @@ fn a_raised_stop_flag_ends_solves_and_frames_with_the_state_untouched() {
     let mut z = rest.positions().to_vec();
     let st = huge.minimize(&mut sys, &mut z, None).unwrap();
     assert_eq!((st.iterations, &z), (full.iterations, &reference));
+}
+
+/// A step test that ends a time step's solve after a step that still moves the positions is accepted
+/// above the gradient tolerance, as before `SolverError::Stuck` (a stiff beam's solves end that way at
+/// the rounding floor of its gradient); the same step with the default tolerances converges. The stuck
+/// test itself: `newton::tests::only_a_solve_that_cannot_move_and_has_not_converged_is_stuck`.
+#[test]
+fn a_step_test_on_a_step_that_moves_ends_a_time_step_as_before() {
+    let (mut sys, mut stepper, mut x, mut v) = hard_stepper(50, 0.05);
+    let tolerance = stepper.newton().params.gradient_tolerance;
+    let solved = stepper.step(&mut sys, &mut x, &mut v).unwrap();
+    assert!(*solved.gradient_norms.last().unwrap() <= tolerance);
+    let (mut sys, mut loose, mut y, mut w) = hard_stepper(50, 0.05);
+    loose.newton_mut().params.step_tolerance = 1.0;
+    let early = loose.step(&mut sys, &mut y, &mut w).unwrap();
+    assert!(
+        *early.gradient_norms.last().unwrap() > 1e3 * tolerance
+            && early.iterations < solved.iterations,
+        "{early:?}"
+    );
 }
