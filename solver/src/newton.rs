@@ -79,8 +79,8 @@
 //! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. In a time
 //! step ([`ImplicitEuler`]) a solve that a step test ends above the gradient tests and above √ε times its
 //! start's gradient, with a last step that moves no coordinate by more than a few units in the last place,
-//! is [`SolverError::Stuck`] and the step
-//! is retried with substeps: such an iterate cannot move (a collapsed triangle) and solves nothing.
+//! is [`SolverError::Stuck`] and the step is retried with substeps: such an iterate cannot move (a
+//! collapsed triangle) and solves nothing.
 //!
 //! A solve that cannot get closer stops early instead of running to the iteration limit: after
 //! [`STALL_ITERATIONS`] accepted steps in a row that are shorter than [`STALL_STEP`] of the Newton
@@ -361,9 +361,10 @@ pub enum SolverError {
         /// What was done.
         stats: Box<NewtonStats>,
     },
-    /// A time step's solve stopped on a step test with ‖∇F‖ above the gradient tolerance and a last step
-    /// that moved no coordinate by more than a few units in the last place: it stopped where it could not
-    /// move (a collapsed triangle, say), which is no solution of the step
+    /// A time step's solve stopped on a step test with ‖∇F‖ above the gradient tolerance and above √ε
+    /// times its start's, and a last step that moved no coordinate by more than a few units in the last
+    /// place: it stopped where it could not move (a collapsed triangle, say), which is no solution of the
+    /// step
     /// ([`ImplicitEuler::advance`] retries the step with smaller substeps).
     #[error("stuck after {} iterations at gradient norm {:e}: its steps no longer move the positions and the gradient is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     Stuck {
@@ -1407,8 +1408,7 @@ impl ImplicitEuler {
     /// tests ([`NewtonParams::converged`] without a step) and above √ε times its start's (a solve at its
     /// rounding floor has lowered it by more: tight tolerances end there, 7.4 → 9.4e-13 N), and a last
     /// step that moved no coordinate of `x` by more than a few units in the last place
-    /// (`‖Δx‖ ≤ 4ε · max |x|`). Such an iterate cannot move, and
-    /// it is not the step's solution: on a lumpy closed shell dropped on a plane
+    /// (`‖Δx‖ ≤ 4ε · max |x|`). Such an iterate cannot move, and it is not the step's solution: on a lumpy closed shell dropped on a plane
     /// (`docs/shells/closed_meshes.py`, frame 28) a triangle collapsed to an altitude of 1e-14 m, Newton's
     /// steps shrank to 1e-18 m with ‖∇F‖ = 3.3e5 N, and the frame was accepted. That solve is now a failed
     /// step, [`SolverError::Stuck`], which [`ImplicitEuler::advance`] retries with smaller substeps. Steps
