@@ -32,7 +32,7 @@ use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::motion::Motion;
 use hinge_energies::pins::Pins;
 use hinge_solver::linear::{
-    ChebyshevJacobi, Dense, FaerLu, LinearSolver, PcgJacobi, default_solver,
+    ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearSolver, PcgJacobi, default_solver,
 };
 
 use crate::scene::Scene;
@@ -41,6 +41,7 @@ use hinge_solver::newton::{
     FrameStats, Globalization, ImplicitEuler, IterationReport, Newton, NewtonParams, NewtonStats,
     Observer, PinMotion, SolverError, SubstepPolicy,
 };
+use hinge_solver::ordering::FillOrdering;
 use hinge_solver::statics::{
     continuation_scales, mean_edge_length, membrane_scales, minimize_continued,
 };
@@ -583,7 +584,10 @@ fn linear_solver(scene: &Scene) -> Box<dyn LinearSolver> {
         "pcg-jacobi" => Box::new(PcgJacobi::new(1e-10, 10_000)),
         "chebyshev-jacobi" => Box::new(ChebyshevJacobi::new(1e-10, 100_000)),
         "dense" => Box::new(Dense::default()),
-        _ => default_solver(),
+        _ => match FillOrdering::from_name(&scene.solver.ordering) {
+            Some(o) => Box::new(FaerLlt::with_ordering(o)),
+            None => default_solver(),
+        },
     }
 }
 

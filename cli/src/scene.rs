@@ -396,6 +396,10 @@ pub struct SolverSpec {
     /// `faer-llt`, `faer-lu`, `pcg-jacobi`, `chebyshev-jacobi` or `dense`.
     #[serde(default = "default_backend")]
     pub backend: String,
+    /// The fill-reducing ordering of `faer-llt`: `auto` (default: nested dissection or AMD, whichever
+    /// leaves the smaller factor), `amd` or `nested-dissection` (see `hinge_solver::ordering`).
+    #[serde(default = "default_ordering")]
+    pub ordering: String,
     /// Newton iteration limit per step.
     #[serde(default = "default_iterations")]
     pub max_iterations: usize,
@@ -469,6 +473,10 @@ fn default_halvings() -> u32 {
     5
 }
 
+fn default_ordering() -> String {
+    "auto".into()
+}
+
 fn default_backend() -> String {
     "faer-llt".into()
 }
@@ -483,6 +491,7 @@ impl Default for SolverSpec {
     fn default() -> Self {
         Self {
             backend: default_backend(),
+            ordering: default_ordering(),
             max_iterations: default_iterations(),
             gradient_tolerance: default_tolerance(),
             max_substep_halvings: default_halvings(),
@@ -868,6 +877,12 @@ impl Scene {
         .contains(&self.solver.backend.as_str())
         {
             return Err(format!("solver.backend: unknown `{}`", self.solver.backend));
+        }
+        if hinge_solver::ordering::FillOrdering::from_name(&self.solver.ordering).is_none() {
+            return Err(format!(
+                "solver.ordering: unknown `{}` (auto, amd, nested-dissection)",
+                self.solver.ordering
+            ));
         }
         if self.frames == 0 {
             return Err("frames: must be at least 1".into());

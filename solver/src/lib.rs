@@ -43,4 +43,5 @@ pub mod adjoint;
 pub mod explicit;
 pub mod linear;
 pub mod newton;
+pub mod ordering;
 pub mod statics;

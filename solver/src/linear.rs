@@ -3,12 +3,17 @@
 //! iteration, solve per right-hand side.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::perm::PermRef;
 use faer::sparse::linalg::LuError as FaerLuError;
-use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
+use faer::sparse::linalg::cholesky::{
+    LltRef, SymbolicCholesky, SymmetricOrdering, factorize_symbolic_cholesky,
+};
 use faer::sparse::linalg::lu::{LuRef, NumericLu, SymbolicLu, factorize_symbolic_lu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Side};
 use hinge_core::export::CsrLayout;
+
+use crate::ordering::{FillOrdering, nested_dissection};
 
 /// A symmetric sparse matrix pattern in lower-triangle CSC form (rows sorted within each column).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -132,6 +137,12 @@ fn check_finite(x: &[f64]) -> Result<(), LinearError> {
 /// unknowns 1 576 ms against 1 378 ms). [`FaerLlt::parallel`] uses
 /// faer's global parallelism (rayon's pool) instead, for large meshes on many cores. Either way the
 /// results do not depend on the thread count.
+///
+/// The fill-reducing ordering is chosen at analysis ([`FaerLlt::with_ordering`],
+/// [`crate::ordering::FillOrdering`]): by default both faer's AMD and this crate's nested dissection are
+/// analysed and the one with the smaller factor is kept (AMD on a tie). Nested dissection wins on closed
+/// shells and large sheets (an icosphere of 10 242 vertices: 10.8 M factor entries against 14.1 M with
+/// AMD, factorization 212 ms against 339 ms), AMD on small sheets; [`FaerLlt::ordering_used`] tells which.
 #[derive(Default)]
 pub struct FaerLlt {
     pattern: Option<LowerCsc>,
@@ -141,9 +152,31 @@ pub struct FaerLlt {
     stack: Option<MemBuffer>,
     analyses: usize,
     parallel: bool,
+    ordering: FillOrdering,
+    used: Option<FillOrdering>,
 }
 
 impl FaerLlt {
+    /// A sequential factorization in the given fill-reducing ordering (the default is
+    /// [`FillOrdering::Auto`]; see [`crate::ordering`]).
+    pub fn with_ordering(ordering: FillOrdering) -> Self {
+        Self {
+            ordering,
+            ..Self::default()
+        }
+    }
+
+    /// The ordering the last analysis factors in ([`FillOrdering::Amd`] or
+    /// [`FillOrdering::NestedDissection`]; `None` before [`LinearSolver::analyze`]).
+    pub fn ordering_used(&self) -> Option<FillOrdering> {
+        self.used
+    }
+
+    /// Entries of the Cholesky factor of the analysed pattern (`None` before [`LinearSolver::analyze`]).
+    pub fn factor_entries(&self) -> Option<usize> {
+        self.symbolic.as_ref().map(SymbolicCholesky::len_val)
+    }
+
     /// A factorization that runs on faer's global parallelism (`faer::get_global_parallelism`, rayon's
     /// pool by default): for large meshes on many cores. It allocates faer's task bookkeeping on every
     /// factorization.
@@ -170,6 +203,8 @@ impl std::fmt::Debug for FaerLlt {
             .field("factored", &self.factored)
             .field("analyses", &self.analyses)
             .field("parallel", &self.parallel)
+            .field("ordering", &self.ordering)
+            .field("used", &self.used)
             .finish()
     }
 }
@@ -187,9 +222,33 @@ impl LinearSolver for FaerLlt {
             None,
             &pattern.row_idx,
         );
-        let symbolic =
-            factorize_symbolic_cholesky(sym, Side::Lower, Default::default(), Default::default())
-                .map_err(|e| LinearError::Faer(format!("{e:?}")))?;
+        let analyse = |ordering: SymmetricOrdering<'_, usize>| {
+            factorize_symbolic_cholesky(sym, Side::Lower, ordering, Default::default())
+                .map_err(|e| LinearError::Faer(format!("{e:?}")))
+        };
+        let nested = |pattern: &LowerCsc| -> Result<SymbolicCholesky<usize>, LinearError> {
+            let forward = nested_dissection(pattern)?;
+            let mut inverse = vec![0; forward.len()];
+            for (k, &i) in forward.iter().enumerate() {
+                inverse[i] = k;
+            }
+            let perm = PermRef::new_checked(&forward, &inverse, pattern.n);
+            analyse(SymmetricOrdering::Custom(perm))
+        };
+        let (symbolic, used) = match self.ordering {
+            FillOrdering::Amd => (analyse(SymmetricOrdering::Amd)?, FillOrdering::Amd),
+            FillOrdering::NestedDissection => (nested(pattern)?, FillOrdering::NestedDissection),
+            FillOrdering::Auto => {
+                let amd = analyse(SymmetricOrdering::Amd)?;
+                let nd = nested(pattern)?;
+                if nd.len_val() < amd.len_val() {
+                    (nd, FillOrdering::NestedDissection)
+                } else {
+                    (amd, FillOrdering::Amd)
+                }
+            }
+        };
+        self.used = Some(used);
         let par = self.par();
         self.stack = Some(MemBuffer::new(
             symbolic
