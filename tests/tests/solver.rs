@@ -1929,3 +1929,122 @@ fn a_step_test_on_a_step_that_moves_ends_a_time_step_as_before() {
         "{early:?}"
     );
 }
+
+/// A vertex attracted by `k ln |x − c|` towards the point `c` (force `k/r`, unbounded below at `c`): the
+/// incremental potential `m (r − r̂)²/(2Δt²) + k ln r` along the radius has a local minimum near the
+/// prediction's distance `r̂` only when `r̂² ≥ 4 k Δt²/m`. Without it Newton follows the energy into the
+/// singularity with ever shorter steps and an ever larger gradient, as on a triangle collapsing under a
+/// bending energy (`docs/shells/closed_meshes.py`'s lumpy shell, frame 28).
+struct Attractor {
+    centre: Vector3<f64>,
+    k: f64,
+    diag: usize,
+}
+
+impl Energy for Attractor {
+    fn name(&self) -> &str {
+        "attractor"
+    }
+    fn n_vertices(&self) -> usize {
+        1
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(
+        &mut self,
+        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), hinge_core::EvalError> {
+        self.diag = pattern.find(0, 0).ok_or(hinge_core::EvalError::Pattern {
+            message: "no diagonal block".into(),
+        })?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, hinge_core::EvalError> {
+        let d = x[0] - self.centre;
+        let r2 = d.norm_squared();
+        if !(r2 > 0.0) {
+            return Err(hinge_core::EvalError::Pattern {
+                message: "vertex 0 on the attractor".into(),
+            });
+        }
+        acc.add_gradient(0, &(d * (self.k / r2)));
+        if request.hessian {
+            let h = (hinge_core::nalgebra::Matrix3::identity() - d * d.transpose() * (2.0 / r2))
+                * (self.k / r2);
+            acc.add_block(self.diag, 0, 0, &h);
+        }
+        Ok(0.5 * self.k * r2.ln())
+    }
+}
+
+/// One vertex of mass 1 passing the attractor at `b` = 2 cm (m = 1, k = 0.02, Δt = 0.1 s, speed 2 m/s, so
+/// that the full step's prediction is the point of closest approach), with the stepper.
+fn fly_by() -> (System, ImplicitEuler, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+    let centre = Vector3::new(1.0, 0.0, 0.0);
+    let sys = System::new(
+        1,
+        vec![Box::new(Attractor {
+            centre,
+            k: 0.02,
+            diag: 0,
+        })],
+    )
+    .unwrap();
+    let stepper = ImplicitEuler::new(
+        &sys,
+        0.1,
+        vec![1.0],
+        Pins::new(1, Vec::new()).unwrap(),
+        Box::new(FaerLlt::default()),
+        NewtonParams {
+            max_iterations: 200,
+            ..NewtonParams::default()
+        },
+    )
+    .unwrap();
+    let x = vec![centre + Vector3::new(0.02, 0.2, 0.0)];
+    let v = vec![Vector3::new(0.0, -2.0, 0.0)];
+    (sys, stepper, x, v)
+}
+
+/// A time step whose solve runs into a singularity fails, leaving the state untouched (the solver's too:
+/// the same step fails the same way again), and `advance` retries it in substeps, each with a local
+/// minimum near its prediction: the frame is accepted, every accepted substep converged, and the vertex
+/// never came near the attractor. The full step's solve crawls with shifted steps (shifts up to 4e30, steps
+/// down to 4e-17 m) while ‖∇F‖ grows to 1.8e14 N and ends as [`SolverError::Stalled`]; a solve that ends
+/// on the step test with exact steps there ends as [`SolverError::Stuck`] (the lumpy shell; the rule is
+/// tested in `newton::tests`). Both are retried alike.
+#[test]
+fn a_step_collapsing_into_a_singularity_fails_and_is_retried_in_substeps() {
+    let (mut sys, mut stepper, mut x, mut v) = fly_by();
+    let (x0, v0) = (x.clone(), v.clone());
+    let err = stepper.step(&mut sys, &mut x, &mut v).unwrap_err();
+    println!("full step: {err}");
+    assert!(
+        matches!(err, SolverError::Stuck { .. } | SolverError::Stalled { .. }),
+        "{err}"
+    );
+    assert_eq!((&x, &v, stepper.time()), (&x0, &v0, 0.0));
+    // Nothing of the failed attempt stays behind, in the solver either (the shift its ladder climbed to):
+    // the same step fails the same way.
+    let again = stepper.step(&mut sys, &mut x, &mut v).unwrap_err();
+    assert_eq!(again.to_string(), err.to_string());
+    assert_eq!(again.stats().iterations, err.stats().iterations);
+    let frame = stepper
+        .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
+        .unwrap();
+    println!("{frame:?}");
+    assert!(
+        frame.failed_attempts >= 1 && frame.substeps >= 2,
+        "{frame:?}"
+    );
+    assert!(frame.max_final_gradient_norm <= stepper.newton().params.gradient_tolerance);
+    let r = (x[0] - Vector3::new(1.0, 0.0, 0.0)).norm();
+    assert!(r > 0.01, "the vertex ended {r} m from the attractor");
+    assert!((stepper.time() - 0.1).abs() < 1e-15);
+}
