@@ -713,15 +713,9 @@ impl Newton {
             out: &mut out,
             magnitude: 0.0,
         };
-        // A failed solve leaves the solver as it found it: the shift it climbed to (crawling into a
-        // singularity, 1e30 and more) must not start the next solve's ladder (the retry of the same step
-        // with a substep would take steps of 1e-30 m and end at once).
-        let ladder_hint = self.ladder_hint;
         let result = self.iterate(&mut solve, &mut w);
         if result.is_ok() {
             x.copy_from_slice(&w.cur);
-        } else {
-            self.ladder_hint = ladder_hint;
         }
         self.out = Some(out);
         self.work = w;
