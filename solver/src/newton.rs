@@ -660,7 +660,8 @@ impl Newton {
     }
 
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
-    /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged.
+    /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged, and so is the
+    /// remembered shift ([`NewtonParams::remember_shift`]).
     ///
     /// Each iteration: assemble the reduced Hessian, factor it under the [`Globalization`], solve for the
     /// direction, line-search it (with Levenberg–Marquardt retries when that fails), and stop when
@@ -713,9 +714,14 @@ impl Newton {
             out: &mut out,
             magnitude: 0.0,
         };
+        let hint = self.ladder_hint;
         let result = self.iterate(&mut solve, &mut w);
         if result.is_ok() {
             x.copy_from_slice(&w.cur);
+        } else {
+            // A failed solve leaves the shift memory as it found it: the shift its ladder climbed to
+            // belongs to a state that is thrown away.
+            self.ladder_hint = hint;
         }
         self.out = Some(out);
         self.work = w;

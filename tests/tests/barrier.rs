@@ -87,10 +87,12 @@ fn a_fast_sheet_tunnels_through_a_sphere_with_the_penalty_and_never_reaches_it_w
         let mut x = rest.positions().to_vec();
         let mut v = vec![Vector3::new(40.0, 0.0, 0.0); x.len()];
         let mut closest = f64::INFINITY;
+        let mut centroids = Vec::new();
         for _ in 0..10 {
             st.advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
                 .unwrap();
             closest = x.iter().map(|p| probe.distance(p)).fold(closest, f64::min);
+            centroids.push(centroid(&x).x);
         }
         println!(
             "barrier {barrier}: centroid after 10 steps {:?}, closest distance to the sphere {closest:.3e} m",
@@ -98,14 +100,21 @@ fn a_fast_sheet_tunnels_through_a_sphere_with_the_penalty_and_never_reaches_it_w
         );
         if barrier {
             assert!(closest > 0.0, "{closest}");
-            // Turned back: it moves away from the sphere.
+            // Stopped in front of the sphere: after every step the sheet's centroid is short of the sphere's
+            // centre (the sheet wraps around the sphere, so single vertices do get past it), and from the
+            // first step on it moves back, step after step, and is still moving away at the end. How far
+            // it has come back after ten steps is not asserted: that depends on backward Euler's numerical
+            // damping of the 40 m/s impact and on which minimum of the non-convex incremental potential
+            // Newton reaches in the impact's substeps (−0.25 m or −0.075 m, depending only on the shift
+            // the retried substeps start from).
+            assert!(centroids.iter().all(|&c| c < 0.0), "{centroids:?}");
+            assert!(centroids.windows(2).all(|c| c[1] < c[0]), "{centroids:?}");
             assert!(centroid(&v).x < 0.0, "{:?}", centroid(&v));
         }
         finals.push(centroid(&x).x);
     }
     // The penalty never saw the sphere: the sheet is beyond it.
     assert!(finals[0] > 0.1, "{finals:?}");
-    assert!(finals[1] < -0.1, "{finals:?}");
 }
 
 #[test]

@@ -2012,8 +2012,8 @@ fn fly_by() -> (System, ImplicitEuler, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     (sys, stepper, x, v)
 }
 
-/// A time step whose solve runs into a singularity fails, leaving the state untouched, and `advance`
-/// retries it in substeps, each with a local
+/// A time step whose solve runs into a singularity fails, leaving the state untouched (the solver's too:
+/// the same step fails the same way again), and `advance` retries it in substeps, each with a local
 /// minimum near its prediction: the frame is accepted, every accepted substep converged, and the vertex
 /// never came near the attractor. The full step's solve crawls with shifted steps (shifts up to 4e30, steps
 /// down to 4e-17 m) while ‖∇F‖ grows to 1.8e14 N and ends as [`SolverError::Stalled`]; a solve that ends
@@ -2030,6 +2030,11 @@ fn a_step_collapsing_into_a_singularity_fails_and_is_retried_in_substeps() {
         "{err}"
     );
     assert_eq!((&x, &v, stepper.time()), (&x0, &v0, 0.0));
+    // Nothing of the failed attempt stays behind, in the solver either (the shift its ladder climbed to):
+    // the same step fails the same way.
+    let again = stepper.step(&mut sys, &mut x, &mut v).unwrap_err();
+    assert_eq!(again.to_string(), err.to_string());
+    assert_eq!(again.stats().iterations, err.stats().iterations);
     let frame = stepper
         .advance(&mut sys, &mut x, &mut v, SubstepPolicy::default())
         .unwrap();
