@@ -136,11 +136,18 @@ pub fn nested_dissection(pattern: &LowerCsc) -> Result<Vec<usize>, LinearError> 
             continue;
         }
         match work.split(&g, &set) {
-            Split::Components(first, rest) => {
-                stack.push((rest, false));
-                stack.push((first, false));
+            Split::Components(components) => {
+                // Popped in the order found.
+                stack.extend(components.into_iter().rev().map(|c| (c, false)));
             }
             Split::Dissected { a, b, separator } => {
+                if separator.is_empty() {
+                    // Cannot happen (see `split`), but a set that does not shrink is ordered as it is
+                    // rather than split again.
+                    let set: Vec<usize> = a.into_iter().chain(b).collect();
+                    amd_of(&g, &set, &mut work.local, &mut order)?;
+                    continue;
+                }
                 // Popped in the order a, b, separator.
                 stack.push((separator, true));
                 stack.push((b, false));
@@ -155,8 +162,9 @@ pub fn nested_dissection(pattern: &LowerCsc) -> Result<Vec<usize>, LinearError> 
 }
 
 enum Split {
-    /// The set is not connected: one component and the rest.
-    Components(Vec<usize>, Vec<usize>),
+    /// The set is not connected: its connected components, all of them (found in one pass, so a set
+    /// of many small pieces costs linear time, not quadratic).
+    Components(Vec<Vec<usize>>),
     /// Two sides no edge joins, and the separator between them.
     Dissected {
         a: Vec<usize>,
@@ -206,14 +214,8 @@ impl Work {
         let mut start = set[0];
         let mut depth = self.bfs(g, start);
         if self.queue.len() < set.len() {
-            let component = self.queue.clone();
-            let rest = set
-                .iter()
-                .copied()
-                .filter(|&v| self.level[v] == usize::MAX)
-                .collect();
             self.reset();
-            return Split::Components(component, rest);
+            return Split::Components(self.components(g, set));
         }
         // Pseudo-peripheral start: restart from a vertex of the last level with the fewest neighbours
         // while the depth grows (at most 8 rounds).
@@ -251,7 +253,12 @@ impl Work {
             }
             below += c;
         }
-        let cut = best.map_or(median, |(l, _)| l);
+        // Never the deepest level: a cut there has nothing beyond it, so it would give back the whole set
+        // as one side and the dissection would never end (a fan around one vertex puts most of a set on
+        // the deepest level, and the median falls there). Above it, every vertex beyond the cut has a
+        // breadth-first parent on it, so the separator is not empty and both sides are smaller than the
+        // set. `depth ≥ 1` here: the set is connected and has more than `ND_LEAF` vertices.
+        let cut = best.map_or(median, |(l, _)| l).min(depth.saturating_sub(1));
         let (mut a, mut b, mut separator) = (Vec::new(), Vec::new(), Vec::new());
         for &v in &self.queue {
             match self.level[v].cmp(&cut) {
@@ -274,6 +281,34 @@ impl Work {
         }
         self.reset();
         Split::Dissected { a, b, separator }
+    }
+
+    /// The connected components of the marked set `set`, each in breadth-first order, in the order of
+    /// their first vertex in `set`.
+    fn components(&mut self, g: &Graph, set: &[usize]) -> Vec<Vec<usize>> {
+        let mut components = Vec::new();
+        for &s in set {
+            if self.level[s] != usize::MAX {
+                continue;
+            }
+            let first = self.queue.len();
+            self.queue.push(s);
+            self.level[s] = 0;
+            let mut head = first;
+            while head < self.queue.len() {
+                let v = self.queue[head];
+                head += 1;
+                for &w in g.neighbours(v) {
+                    if self.mark[w] == self.id && self.level[w] == usize::MAX {
+                        self.level[w] = 0;
+                        self.queue.push(w);
+                    }
+                }
+            }
+            components.push(self.queue[first..].to_vec());
+        }
+        self.reset();
+        components
     }
 
     fn reset(&mut self) {

@@ -76,10 +76,56 @@ fn two_spheres() -> TriMesh {
     .unwrap()
 }
 
+/// A closed cylinder whose caps are fans around a centre vertex (as CAD exports write them): `ring`
+/// vertices around, `rows` rings, so the caps' centres neighbour `ring` vertices each and the side's
+/// triangles are long and thin; numbered at random. With `rows = 1` and no side, a bipyramid.
+fn fan_capped_cylinder(ring: usize, rows: usize) -> TriMesh {
+    let mut x = Vec::new();
+    for r in 0..rows {
+        for k in 0..ring {
+            let a = std::f64::consts::TAU * k as f64 / ring as f64;
+            x.push(Vector3::new(a.cos(), a.sin(), 0.5 * r as f64));
+        }
+    }
+    let (bottom, top) = (x.len(), x.len() + 1);
+    x.push(Vector3::new(0.0, 0.0, -0.3));
+    x.push(Vector3::new(0.0, 0.0, 0.5 * (rows - 1) as f64 + 0.3));
+    let at = |r: usize, k: usize| r * ring + k % ring;
+    let mut t = Vec::new();
+    for k in 0..ring {
+        t.push([bottom, at(0, k + 1), at(0, k)]);
+        t.push([top, at(rows - 1, k), at(rows - 1, k + 1)]);
+        for r in 0..rows - 1 {
+            t.push([at(r, k), at(r, k + 1), at(r + 1, k + 1)]);
+            t.push([at(r, k), at(r + 1, k + 1), at(r + 1, k)]);
+        }
+    }
+    let n = x.len();
+    renumber(&TriMesh::new(x, t).unwrap(), &random_permutation(n, 5)).unwrap()
+}
+
+/// A disk made of one fan: a centre vertex and `ring` boundary vertices.
+fn fan_disk(ring: usize) -> TriMesh {
+    let mut x: Vec<_> = (0..ring)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / ring as f64;
+            Vector3::new(a.cos(), a.sin(), 0.0)
+        })
+        .collect();
+    x.push(Vector3::zeros());
+    let t = (0..ring).map(|k| [ring, k, (k + 1) % ring]).collect();
+    TriMesh::new(x, t).unwrap()
+}
+
 fn meshes() -> Vec<(&'static str, TriMesh)> {
     let sphere = icosphere(3, 0.5).unwrap();
     let n = sphere.n_vertices();
     vec![
+        // Fans around one vertex put most of a set at one breadth-first level: these hung the
+        // dissection before it kept its cut above the deepest level.
+        ("fan disk", fan_disk(200)),
+        ("bipyramid", fan_capped_cylinder(150, 1)),
+        ("cylinder with fan caps", fan_capped_cylinder(100, 4)),
         (
             "icosphere, random numbering",
             renumber(&sphere, &random_permutation(n, 3)).unwrap(),
@@ -126,7 +172,7 @@ fn nested_dissection_orders_every_unknown_once_and_keeps_vertices_together() {
 }
 
 /// Patterns that are not vertex-blocked: a dimension that is not a multiple of 3, a diagonal matrix (every
-/// unknown its own component), the empty matrix, a long chain (deep dissection).
+/// unknown its own component), a star, the empty matrix, a long chain (deep dissection).
 #[test]
 fn nested_dissection_orders_scalar_patterns() {
     let chain = |n: usize| LowerCsc {
@@ -140,12 +186,27 @@ fn nested_dissection_orders_scalar_patterns() {
         let p = chain(n);
         assert_permutation(&nested_dissection(&p).unwrap(), n, "chain");
     }
-    let diagonal = LowerCsc {
-        n: 301,
-        col_ptr: (0..=301).collect(),
-        row_idx: (0..301).collect(),
+    // A star: one unknown coupled to all others (a set whose breadth-first levels from a leaf are 1, 1 and
+    // all the rest).
+    let star = |n: usize| LowerCsc {
+        n,
+        col_ptr: std::iter::once(0).chain(n..=2 * n - 1).collect(),
+        row_idx: (0..n).chain(1..n).collect(),
     };
-    assert_permutation(&nested_dissection(&diagonal).unwrap(), 301, "diagonal");
+    for n in [3, 66, 1000] {
+        let p = star(n);
+        assert_permutation(&nested_dissection(&p).unwrap(), n, "star");
+    }
+    // Every unknown its own component: 300 001 of them (found in one pass; splitting one component off
+    // at a time took quadratic time).
+    let diagonal = |n: usize| LowerCsc {
+        n,
+        col_ptr: (0..=n).collect(),
+        row_idx: (0..n).collect(),
+    };
+    for n in [301, 300_001] {
+        assert_permutation(&nested_dissection(&diagonal(n)).unwrap(), n, "diagonal");
+    }
     let empty = LowerCsc {
         n: 0,
         col_ptr: vec![0],
