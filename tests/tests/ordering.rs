@@ -172,7 +172,8 @@ fn nested_dissection_orders_every_unknown_once_and_keeps_vertices_together() {
 }
 
 /// Patterns that are not vertex-blocked: a dimension that is not a multiple of 3, a diagonal matrix (every
-/// unknown its own component), a star, the empty matrix, a long chain (deep dissection).
+/// unknown its own component), a star, random trees, a complete graph, the empty matrix, a long chain (deep
+/// dissection).
 #[test]
 fn nested_dissection_orders_scalar_patterns() {
     let chain = |n: usize| LowerCsc {
@@ -197,6 +198,46 @@ fn nested_dissection_orders_scalar_patterns() {
         let p = star(n);
         assert_permutation(&nested_dissection(&p).unwrap(), n, "star");
     }
+    // Random trees (every vertex's parent drawn among the earlier ones: wide, shallow levels) and a
+    // complete graph (one level below any start).
+    let lower_of = |n: usize, edges: &[(usize, usize)]| {
+        let mut cols = vec![Vec::new(); n];
+        for j in 0..n {
+            cols[j].push(j);
+        }
+        for &(a, b) in edges {
+            cols[a.min(b)].push(a.max(b));
+        }
+        let mut col_ptr = vec![0];
+        let mut row_idx = Vec::new();
+        for mut c in cols {
+            c.sort_unstable();
+            row_idx.extend(c);
+            col_ptr.push(row_idx.len());
+        }
+        LowerCsc {
+            n,
+            col_ptr,
+            row_idx,
+        }
+    };
+    for (n, seed) in [(500, 1), (5000, 2), (20_000, 3)] {
+        let parents = random_permutation(n, seed);
+        let edges: Vec<_> = (1..n).map(|i| (parents[i] % i, i)).collect();
+        assert_permutation(
+            &nested_dissection(&lower_of(n, &edges)).unwrap(),
+            n,
+            "random tree",
+        );
+    }
+    let complete: Vec<_> = (0..200)
+        .flat_map(|a| (a + 1..200).map(move |b| (a, b)))
+        .collect();
+    assert_permutation(
+        &nested_dissection(&lower_of(200, &complete)).unwrap(),
+        200,
+        "complete graph",
+    );
     // Every unknown its own component: 300 001 of them (found in one pass; splitting one component off
     // at a time took quadratic time).
     let diagonal = |n: usize| LowerCsc {
