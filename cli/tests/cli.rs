@@ -865,7 +865,6 @@ fn scenes_are_listed_shown_and_validated() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// `summary.json` of `hinge run ARGS --out DIR --no-frames`.
 /// `[[obstacles]] smoothing` and `model = "barrier"`: the drape with the C² contact penalty (smoothing over
 /// the whole 5 mm margin) and with the barrier (reaching 5 mm) rests on the sphere like the quadratic penalty,
 /// within a millimetre of the margin, the far end dropping as far to 2%; the barrier's cloth never reaches
@@ -920,6 +919,7 @@ fn smoothed_and_barrier_contact_drape_like_the_quadratic_penalty() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `summary.json` of `hinge run ARGS --out DIR --no-frames`.
 fn run_summary(dir: &std::path::Path, args: &[&str]) -> serde_json::Value {
     let mut all = vec!["run"];
     all.extend_from_slice(args);
