@@ -635,6 +635,16 @@ impl Newton {
         self.solver.as_ref()
     }
 
+    /// The shift memory ([`NewtonParams::remember_shift`]): the last positive shift the ladder found.
+    pub(crate) fn shift_memory(&self) -> f64 {
+        self.ladder_hint
+    }
+
+    /// Sets the shift memory back (a failed sequence of solves, [`crate::statics::minimize_continued`]).
+    pub(crate) fn set_shift_memory(&mut self, memory: f64) {
+        self.ladder_hint = memory;
+    }
+
     /// A flag another thread (a Ctrl-C handler, a GUI's cancel button) raises to end the solves: every
     /// [`Newton::minimize`] reads it before each iteration and, once it is set, returns
     /// [`SolverError::Interrupted`] with the positions untouched (like every failed solve). The flag is
@@ -1445,7 +1455,8 @@ impl ImplicitEuler {
     /// [`SubstepPolicy`]): a failed attempt is retried from the same state with half the substep, an
     /// accepted one lets the next grow back (doubling, aligned so that the substeps tile the frame
     /// exactly). Step state is committed per accepted substep only. Below the floor the frame fails: `x` and
-    /// `v` are then those of the frame's start, and so is the system's step state (if no step was ever
+    /// `v` are then those of the frame's start, and so are the Newton solver's shift memory
+    /// ([`NewtonParams::remember_shift`]) and the system's step state (if no step was ever
     /// accepted, it stays as set for the last attempt's start, which is what a retry sets again), including
     /// what the accepted substeps' ends changed ([`System::rewind_step_state`]: plastic rest angles). Every
     /// substep is solved with the system's moving parts at the substep's end time ([`System::set_time`]);
@@ -1488,6 +1499,8 @@ impl ImplicitEuler {
         let (x0, v0) = (x.to_vec(), v.to_vec());
         let committed0 = self.committed.clone();
         let time0 = self.time;
+        // The shift memory, which accepted substeps move: a failed frame sets it back with the rest.
+        let hint0 = self.newton.shift_memory();
         // Accepted substeps end (plastic rest angles move); a frame that fails after some sets that back.
         system.mark_step_state();
         let mut fs = FrameStats {
@@ -1528,6 +1541,7 @@ impl ImplicitEuler {
                         v.copy_from_slice(&v0);
                         self.committed = committed0;
                         self.time = time0;
+                        self.newton.set_shift_memory(hint0);
                         self.restore_step_state(system);
                         // The marked state was the energies' own a frame ago: rewinding to it succeeds.
                         let _ = system.rewind_step_state();

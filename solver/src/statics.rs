@@ -143,12 +143,29 @@ pub fn minimize_continued(
 }
 
 /// [`minimize_continued`] scaling every one of `parameters` by each stage's scale (several membranes of one
-/// system: `membrane.young` and `membrane#2.young`, see [`System::term_labels`]). On failure `x` and every
-/// parameter are unchanged.
+/// system: `membrane.young` and `membrane#2.young`, see [`System::term_labels`]). On failure `x`, every
+/// parameter and the Newton solver's shift memory ([`crate::newton::NewtonParams::remember_shift`], which
+/// the stages that succeeded moved) are unchanged.
 ///
 /// # Errors
 /// As [`minimize_continued`].
 pub fn minimize_continued_all(
+    newton: &mut Newton,
+    system: &mut System,
+    x: &mut [Vector3<f64>],
+    parameters: &[&str],
+    scales: &[f64],
+) -> Result<NewtonStats, SolverError> {
+    let memory = newton.shift_memory();
+    let result = stages(newton, system, x, parameters, scales);
+    if result.is_err() {
+        newton.set_shift_memory(memory);
+    }
+    result
+}
+
+/// The stages of [`minimize_continued_all`].
+fn stages(
     newton: &mut Newton,
     system: &mut System,
     x: &mut [Vector3<f64>],

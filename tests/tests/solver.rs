@@ -2048,3 +2048,222 @@ fn a_step_collapsing_into_a_singularity_fails_and_is_retried_in_substeps() {
     assert!(r > 0.01, "the vertex ended {r} m from the attractor");
     assert!((stepper.time() - 0.1).abs() < 1e-15);
 }
+
+/// Vertex 0 in the radial double well `s (q r⁴/4 − c r²/2)` around the origin (concave near it: a solve
+/// from there needs a shifted Hessian), and a switch: evaluation fails once vertex 1 (pinned, moved by a
+/// `PinMotion`) is beyond `x = 0.75`, or the parameter `scale` (`s`) beyond 1.5.
+struct SwitchedWell {
+    c: f64,
+    q: f64,
+    s: f64,
+    diag: usize,
+}
+
+impl Energy for SwitchedWell {
+    fn name(&self) -> &str {
+        "switched well"
+    }
+    fn n_vertices(&self) -> usize {
+        2
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn parameters(&self) -> Vec<hinge_core::energy::Parameter> {
+        vec![hinge_core::energy::Parameter {
+            name: "scale".into(),
+            len: 1,
+        }]
+    }
+    fn parameter(&self, name: &str) -> Result<Vec<f64>, hinge_core::EvalError> {
+        match name {
+            "scale" => Ok(vec![self.s]),
+            _ => Err(hinge_core::EvalError::Pattern {
+                message: format!("no parameter {name}"),
+            }),
+        }
+    }
+    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), hinge_core::EvalError> {
+        match (name, values) {
+            ("scale", &[s]) => {
+                self.s = s;
+                Ok(())
+            }
+            _ => Err(hinge_core::EvalError::Pattern {
+                message: format!("no parameter {name} of {} values", values.len()),
+            }),
+        }
+    }
+    fn bind(
+        &mut self,
+        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), hinge_core::EvalError> {
+        self.diag = pattern.find(0, 0).ok_or(hinge_core::EvalError::Pattern {
+            message: "no diagonal block".into(),
+        })?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, hinge_core::EvalError> {
+        if x[1].x > 0.75 || self.s > 1.5 {
+            return Err(hinge_core::EvalError::Pattern {
+                message: "the switch is off".into(),
+            });
+        }
+        let (p, s) = (x[0], self.s);
+        let r2 = p.norm_squared();
+        acc.add_gradient(0, &(p * (s * (self.q * r2 - self.c))));
+        if request.hessian {
+            let h = hinge_core::nalgebra::Matrix3::identity() * (s * (self.q * r2 - self.c))
+                + p * p.transpose() * (2.0 * s * self.q);
+            acc.add_block(self.diag, 0, 0, &h);
+        }
+        Ok(s * (0.25 * self.q * r2 * r2 - 0.5 * self.c * r2))
+    }
+}
+
+/// A frame that fails after an accepted substep leaves nothing behind, in the Newton solver either: its
+/// first half step (from the top of the double well) needs a shifted Hessian, which the shift memory
+/// ([`NewtonParams::remember_shift`]) keeps, and its second fails at the floor (`max_halvings = 1`) when the
+/// switch's pin passes 0.75. After that, the stepper takes a frame exactly (positions, velocities,
+/// factorizations, iterations) as a stepper that never saw the failed frame.
+#[test]
+fn a_frame_that_fails_after_a_shifted_substep_leaves_the_solver_as_it_was() {
+    let setup = |dt: f64| {
+        let sys = System::new(
+            2,
+            vec![Box::new(SwitchedWell {
+                c: 1000.0,
+                q: 1e5,
+                s: 1.0,
+                diag: 0,
+            })],
+        )
+        .unwrap();
+        let stepper = ImplicitEuler::new(
+            &sys,
+            dt,
+            vec![1.0, 1.0],
+            Pins::new(2, vec![1]).unwrap(),
+            Box::new(FaerLlt::default()),
+            NewtonParams::default(),
+        )
+        .unwrap();
+        let x = vec![Vector3::new(0.001, 0.0002, 0.0), Vector3::zeros()];
+        let v = vec![Vector3::zeros(); 2];
+        (sys, stepper, x, v)
+    };
+    let policy = SubstepPolicy { max_halvings: 1 };
+    // The switch's pin goes to x = fraction · reach.
+    let motion =
+        |reach: f64| move |fraction: f64, y: &mut [Vector3<f64>]| y[1].x = fraction * reach;
+    let (mut sys, mut stepper, mut x, mut v) = setup(0.1);
+    let (x0, v0) = (x.clone(), v.clone());
+    let err = stepper
+        .advance_with(&mut sys, &mut x, &mut v, policy, Some(&motion(1.0)))
+        .unwrap_err();
+    assert!(matches!(err, SolverError::Eval { .. }), "{err}");
+    assert_eq!((&x, &v, stepper.time()), (&x0, &v0, 0.0));
+    // The failed frame's first half step was accepted and shifted: the same half step on its own, in a
+    // fresh stepper, factors more than once per iteration.
+    let (mut sys_h, mut half, mut xh, mut vh) = setup(0.05);
+    let first = half
+        .advance_with(
+            &mut sys_h,
+            &mut xh,
+            &mut vh,
+            SubstepPolicy { max_halvings: 0 },
+            Some(&motion(0.5)),
+        )
+        .unwrap();
+    assert!(
+        first.newton.factorizations > first.newton.iterations,
+        "{first:?}"
+    );
+    // The next frame, with the switch staying on, against a stepper that never failed.
+    let (mut sys2, mut fresh, mut x2, mut v2) = setup(0.1);
+    let a = stepper
+        .advance_with(&mut sys, &mut x, &mut v, policy, Some(&motion(0.7)))
+        .unwrap();
+    let b = fresh
+        .advance_with(&mut sys2, &mut x2, &mut v2, policy, Some(&motion(0.7)))
+        .unwrap();
+    assert_eq!(
+        (
+            a.newton.iterations,
+            a.newton.factorizations,
+            a.substeps,
+            &x,
+            &v
+        ),
+        (
+            b.newton.iterations,
+            b.newton.factorizations,
+            b.substeps,
+            &x2,
+            &v2
+        )
+    );
+}
+
+/// A continuation whose last solve fails after a shifted stage leaves nothing behind either: the stage at
+/// half the scale (2 → 1) starts on the top of the double well (a shifted Hessian, which the shift memory
+/// keeps), the final solve at the full scale fails (the switch). After that, a solve takes exactly the iterations,
+/// factorizations and result of a Newton solver that never saw the failed continuation.
+#[test]
+fn a_continuation_that_fails_after_a_shifted_stage_leaves_the_solver_as_it_was() {
+    let setup = || {
+        let sys = System::new(
+            2,
+            vec![Box::new(SwitchedWell {
+                c: 1000.0,
+                q: 1e5,
+                s: 2.0,
+                diag: 0,
+            })],
+        )
+        .unwrap();
+        let newton = Newton::new(
+            &sys,
+            &Pins::new(2, vec![1]).unwrap(),
+            Box::new(FaerLlt::default()),
+            NewtonParams::default(),
+        )
+        .unwrap();
+        (sys, newton)
+    };
+    let x0 = vec![Vector3::new(0.001, 0.0002, 0.0), Vector3::zeros()];
+    let (mut sys, mut newton) = setup();
+    let mut x = x0.clone();
+    let err = hinge_solver::statics::minimize_continued(
+        &mut newton,
+        &mut sys,
+        &mut x,
+        "switched well.scale",
+        &[0.5],
+    )
+    .unwrap_err();
+    assert!(matches!(err, SolverError::Eval { .. }), "{err}");
+    assert_eq!(x, x0);
+    assert_eq!(sys.parameter("switched well.scale").unwrap(), [2.0]);
+    // Its stage at half the scale, on its own in a fresh solver, is shifted.
+    let (mut sys_h, mut half) = setup();
+    sys_h.set_parameter("switched well.scale", &[1.0]).unwrap();
+    let mut xh = x0.clone();
+    let stage = half.minimize(&mut sys_h, &mut xh, None).unwrap();
+    assert!(stage.factorizations > stage.iterations, "{stage:?}");
+    // A solve at a scale the switch admits, against a solver that never failed.
+    let (mut sys2, mut fresh) = setup();
+    sys.set_parameter("switched well.scale", &[1.2]).unwrap();
+    sys2.set_parameter("switched well.scale", &[1.2]).unwrap();
+    let mut x2 = x0.clone();
+    let a = newton.minimize(&mut sys, &mut x, None).unwrap();
+    let b = fresh.minimize(&mut sys2, &mut x2, None).unwrap();
+    assert_eq!(
+        (a.iterations, a.factorizations, &x),
+        (b.iterations, b.factorizations, &x2)
+    );
+}
