@@ -82,6 +82,11 @@ pub struct RunArgs {
     /// `"interrupted": true` and exits with code 130.
     #[arg(long = "static")]
     pub statics: bool,
+    /// Print a line after every accepted Newton iteration ([`trace_line`]: the iteration, F, ‖∇F‖, the
+    /// step, its length α, the diagonal shift): a frame's lines come before its frame line; with
+    /// `--static` they replace the progress lines. Symplectic Euler has no Newton iterations to show.
+    #[arg(long)]
+    pub trace: bool,
 }
 
 /// The file format of written frames.
@@ -750,8 +755,28 @@ pub fn simulate_until(
     out: Option<Output<'_>>,
     stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
+    progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
+) -> Result<RunSummary, String> {
+    simulate_observed(scene, rest, out, stop, names, None, progress)
+}
+
+/// [`simulate_until`] with `observer` called after every accepted Newton iteration of every implicit step
+/// ([`Newton::set_observer`]; [`trace_line`] formats one). It sees the iterations of every attempt, those of
+/// substeps and of attempts that fail included; it cannot change the run.
+///
+/// # Errors
+/// As [`simulate`].
+pub fn simulate_observed(
+    scene: &Scene,
+    rest: &TriMesh,
+    out: Option<Output<'_>>,
+    stop: Option<&Arc<AtomicBool>>,
+    names: Option<&FileNumbering>,
+    observer: Option<Observer>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
+    // Shared by the steppers a run makes (a new one when pins are released).
+    let observer = observer.map(|o| Arc::new(std::sync::Mutex::new(o)));
     let start = Instant::now();
     let n = rest.n_vertices();
     let Built {
@@ -800,6 +825,17 @@ pub fn simulate_until(
             )
             .map_err(|e| e.to_string())?;
             stepper.newton_mut().set_stop(stop.cloned());
+            if let Some(shared) = &observer {
+                let shared = Arc::clone(shared);
+                stepper
+                    .newton_mut()
+                    .set_observer(Some(Box::new(move |r: &IterationReport| {
+                        // A poisoned lock (an observer that panicked) just ends the tracing.
+                        if let Ok(mut o) = shared.lock() {
+                            o(r);
+                        }
+                    })));
+            }
             Stepper::Implicit(Box::new(stepper))
         })
     };
@@ -987,6 +1023,14 @@ pub fn simulate_until(
     Ok(summary)
 }
 
+/// The observer of `hinge run --trace`: [`trace_line`] on standard output.
+fn tracer() -> Observer {
+    Box::new(|r: &IterationReport| {
+        println!("{}", trace_line(r));
+        let _ = std::io::stdout().flush();
+    })
+}
+
 /// How often [`static_progress`] reports in `hinge run --static`.
 pub const STATIC_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(5);
 
@@ -1018,6 +1062,23 @@ pub fn static_progress(
             ));
         }
     })
+}
+
+/// One line of `hinge run --trace`: `  newton I: F = …, |grad F| = … N, |dx| = … m, alpha = …, shift = …`,
+/// with `, definite` for a step of the definite Hessian ([`Globalization::ProjectOnDemand`]) and
+/// `, stage k/n` in a membrane continuation. I counts from 1 in each solve (each substep, each attempt).
+pub fn trace_line(r: &IterationReport) -> String {
+    let mut line = format!(
+        "  newton {}: F = {:.10e}, |grad F| = {:.3e} N, |dx| = {:.3e} m, alpha = {}, shift = {:.3e}",
+        r.iteration, r.energy, r.gradient_norm, r.step_norm, r.step_length, r.shift
+    );
+    if r.definite {
+        line.push_str(", definite");
+    }
+    if let Some((k, n)) = r.stage {
+        line.push_str(&format!(", stage {k}/{n}"));
+    }
+    line
 }
 
 /// The time integrator of a run.
@@ -1124,10 +1185,14 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     let frames = scene.frames;
     let summary = if args.statics {
         // A static solve of a large soft shell takes minutes: a line every few seconds shows it moving.
-        let progress = static_progress(STATIC_PROGRESS_EVERY, |line| {
-            println!("{line}");
-            let _ = std::io::stdout().flush();
-        });
+        let progress = if args.trace {
+            tracer()
+        } else {
+            static_progress(STATIC_PROGRESS_EVERY, |line| {
+                println!("{line}");
+                let _ = std::io::stdout().flush();
+            })
+        };
         pool.install(|| {
             equilibrium_observed(
                 &scene,
@@ -1140,12 +1205,13 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         })?
     } else {
         pool.install(|| {
-            simulate_until(
+            simulate_observed(
                 &scene,
                 &rest,
                 frames_dir,
                 Some(&*INTERRUPTED),
                 names,
+                args.trace.then(tracer),
                 |frame, fs, seconds, _| {
                     println!(
                         "frame {:>4}/{frames}: {} Newton iterations, {} factorizations, {} substep{}, {:.1} ms",

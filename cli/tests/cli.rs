@@ -3544,3 +3544,108 @@ fn every_closed_mesh_of_the_shells_script_sets_up_and_runs() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The `Newton iterations` count of a `frame k/N: …` or `done: …` line.
+fn iterations_in(line: &str) -> usize {
+    let before = line.split(" Newton iterations").next().unwrap();
+    before.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
+/// The value after `key = ` in a `--trace` line.
+fn trace_value(line: &str, key: &str) -> f64 {
+    let rest = line.split(&format!("{key} = ")).nth(1).unwrap();
+    rest.split([',', ' ']).next().unwrap().parse().unwrap()
+}
+
+/// `hinge run --trace`: a line per accepted Newton iteration, before its frame's line, numbered from 1 in
+/// each solve, as many as the frame counts, the last at the scene's tolerance; the drape's first 22 frames
+/// include its shifted and extrapolated steps. Tracing changes nothing of the run (summary.json's counts
+/// and results are those of a run without it). `--static` traces every iteration of every membrane stage.
+#[test]
+fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
+    let dir = tmp("trace");
+    let plain = run_summary(&dir.join("plain"), &["drape", "--frames", "22"]);
+    let traced_dir = dir.join("traced");
+    let o = hinge(&[
+        "run",
+        "drape",
+        "--frames",
+        "22",
+        "--trace",
+        "--no-frames",
+        "--out",
+        traced_dir.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    let (mut pending, mut frames, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0, 0);
+    for line in text.lines() {
+        if line.starts_with("  newton ") {
+            let k: usize = line["  newton ".len()..]
+                .split(':')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap();
+            assert_eq!(k, pending.len() + 1, "{line}");
+            shifted += usize::from(trace_value(line, "shift") > 0.0);
+            extrapolated += usize::from(trace_value(line, "alpha") > 1.0);
+            pending.push(line);
+        } else if line.starts_with("frame ") {
+            frames += 1;
+            assert_eq!(iterations_in(line), pending.len(), "{line}");
+            let last = pending.last().unwrap();
+            assert!(trace_value(last, "|grad F|") <= 1e-6, "{last}");
+            pending.clear();
+        }
+    }
+    assert_eq!(frames, 22);
+    assert!(pending.is_empty());
+    assert!(shifted > 0 && extrapolated > 0, "{shifted} {extrapolated}");
+    let traced: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(traced_dir.join("summary.json")).unwrap())
+            .unwrap();
+    for key in [
+        "newton_iterations",
+        "factorizations",
+        "line_search_steps",
+        "max_final_gradient_norm",
+        "far_end_drop",
+        "max_speed",
+        "min_clearance_to_sphere",
+    ] {
+        assert!(!traced[key].is_null(), "{key}");
+        assert_eq!(traced[key], plain[key], "{key}");
+    }
+    // Statics: one line per iteration of every stage, the stages counted up to the final one.
+    let o = hinge(&[
+        "run",
+        "beam3",
+        "--static",
+        "--trace",
+        "--no-frames",
+        "--out",
+        dir.join("static").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8(o.stdout).unwrap();
+    let lines: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("  newton "))
+        .collect();
+    let done = text.lines().find(|l| l.starts_with("done: ")).unwrap();
+    assert_eq!(lines.len(), iterations_in(done), "{text}");
+    let last = lines.last().unwrap();
+    let (k, n) = last
+        .rsplit("stage ")
+        .next()
+        .unwrap()
+        .split_once('/')
+        .unwrap();
+    assert_eq!(k, n, "{last}");
+    assert!(
+        !text.contains("static: "),
+        "progress lines are replaced: {text}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
