@@ -3580,13 +3580,8 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
     let text = String::from_utf8(o.stdout).unwrap();
     let (mut pending, mut frames, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0, 0);
     for line in text.lines() {
-        if line.starts_with("  newton ") {
-            let k: usize = line["  newton ".len()..]
-                .split(':')
-                .next()
-                .unwrap()
-                .parse()
-                .unwrap();
+        if let Some(rest) = line.strip_prefix("  newton ") {
+            let k: usize = rest.split(':').next().unwrap().parse().unwrap();
             assert_eq!(k, pending.len() + 1, "{line}");
             shifted += usize::from(trace_value(line, "shift") > 0.0);
             extrapolated += usize::from(trace_value(line, "alpha") > 1.0);
