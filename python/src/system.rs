@@ -880,16 +880,20 @@ impl PyStepper {
 /// Frames of a scene: (frames, n, 3) positions.
 type Frames = Vec<Vec<Vector3<f64>>>;
 
-/// `run_scene(scene, frames=None)`: simulates a built-in scene (`drape`, `shell-drop`, `beam1`, …) or a
-/// TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh, the positions of
-/// every frame as a (frames, n, 3) array, and the run's counts.
+/// `run_scene(scene, frames=None, trace=False)`: simulates a built-in scene (`drape`, `shell-drop`,
+/// `beam1`, …) or a TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh,
+/// the positions of every frame as a (frames, n, 3) array, and the run's counts, per frame too
+/// (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`). With `trace`, `summary["trace"]`
+/// is a (k, 7) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
+/// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift.
 #[pyfunction]
-#[pyo3(signature = (scene, frames=None))]
+#[pyo3(signature = (scene, frames=None, trace=false))]
 #[allow(clippy::type_complexity)]
 pub fn run_scene<'py>(
     py: Python<'py>,
     scene: &str,
     frames: Option<usize>,
+    trace: bool,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<i64>>,
@@ -912,10 +916,42 @@ pub fn run_scene<'py>(
         )));
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
+    // Per frame: Newton iterations, factorizations, substeps.
+    let mut per_frame: Vec<[usize; 3]> = Vec::with_capacity(sc.frames);
+    // The trace's rows, and the frame the observer's iterations belong to (the frames done so far).
+    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 7]>::new()));
+    let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let observer: Option<hinge_solver::newton::Observer> = trace.then(|| {
+        let (rows, frame) = (std::sync::Arc::clone(&rows), std::sync::Arc::clone(&frame));
+        Box::new(move |r: &hinge_solver::newton::IterationReport| {
+            let k = frame.load(std::sync::atomic::Ordering::Relaxed);
+            if let Ok(mut rows) = rows.lock() {
+                rows.push([
+                    k as f64,
+                    r.iteration as f64,
+                    r.energy,
+                    r.gradient_norm,
+                    r.step_norm,
+                    r.step_length,
+                    r.shift,
+                ]);
+            }
+        }) as hinge_solver::newton::Observer
+    });
     let (summary, signal) = interruptible(py, |stop| {
-        hinge_cli::run::simulate_until(&sc, &rest, None, Some(stop), None, |_, _, _, x| {
-            xs.push(x.to_vec())
-        })
+        hinge_cli::run::simulate_observed(
+            &sc,
+            &rest,
+            None,
+            Some(stop),
+            None,
+            observer,
+            |k, fs, _, x| {
+                xs.push(x.to_vec());
+                per_frame.push([fs.newton.iterations, fs.newton.factorizations, fs.substeps]);
+                frame.store(k + 1, std::sync::atomic::Ordering::Relaxed);
+            },
+        )
     });
     // Ctrl-C ends the run after the frame it is in (or at its next Newton iteration) and raises here.
     if let Some(e) = signal {
@@ -944,6 +980,24 @@ pub fn run_scene<'py>(
     d.set_item("max_final_gradient_norm", summary.max_final_gradient_norm)?;
     d.set_item("total_seconds", summary.total_seconds)?;
     d.set_item("min_clearance", summary.min_clearance)?;
+    for (key, j) in [
+        ("frame_newton_iterations", 0),
+        ("frame_factorizations", 1),
+        ("frame_substeps", 2),
+    ] {
+        d.set_item(key, per_frame.iter().map(|f| f[j]).collect::<Vec<_>>())?;
+    }
+    if trace {
+        let rows = rows.lock().map(|r| r.clone()).unwrap_or_default();
+        let count = rows.len();
+        let flat: Vec<f64> = rows.into_iter().flatten().collect();
+        d.set_item(
+            "trace",
+            flat.into_pyarray(py)
+                .reshape([count, 7])
+                .map_err(value_error)?,
+        )?;
+    }
     Ok((
         to_array(py, rest.positions())?,
         PyArray2::from_vec2(py, &tris).map_err(value_error)?,

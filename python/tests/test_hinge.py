@@ -805,6 +805,32 @@ def test_run_scene_gives_frames_like_the_cli(tmp_path):
         hinge.run_scene("drape", frames=0)
 
 
+def test_run_scene_counts_per_frame_and_traces_every_iteration():
+    _, _, X, plain = hinge.run_scene("drape", frames=22)
+    _, _, Xt, s = hinge.run_scene("drape", frames=22, trace=True)
+    assert "trace" not in plain
+    # Tracing changes nothing of the run.
+    assert np.array_equal(X, Xt)
+    for key in ["newton_iterations", "factorizations", "line_search_steps", "max_final_gradient_norm"]:
+        assert s[key] == plain[key], key
+    its, facts, subs = s["frame_newton_iterations"], s["frame_factorizations"], s["frame_substeps"]
+    assert len(its) == len(facts) == len(subs) == 22
+    assert sum(its) == s["newton_iterations"] and sum(facts) == s["factorizations"]
+    assert sum(subs) == s["substeps"] and all(f >= i for i, f in zip(its, facts))
+    t = s["trace"]
+    assert t.shape == (s["newton_iterations"], 7)
+    for k in range(22):
+        rows = t[t[:, 0] == k]
+        assert len(rows) == its[k], k
+        # One solve per frame here (no substeps): iterations 1, 2, …, and the last at the tolerance.
+        assert list(rows[:, 1]) == list(range(1, its[k] + 1)), k
+        assert rows[-1, 3] <= 1e-6, k
+    # Shifted and extrapolated steps are in it.
+    assert (t[:, 6] > 0).any() and (t[:, 5] > 1).any()
+    with pytest.raises(ValueError, match="trace"):
+        hinge.run_scene("drape", frames=1, trace="yes")
+
+
 def cantilever(k=1e-2, young=1e6):
     V, F = sheet(8, 3, 23, jitter=0.05)
     V = V * [0.3, 0.3, 1.0]

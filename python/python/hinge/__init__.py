@@ -477,10 +477,15 @@ class ImplicitEuler:
         return self._t.time
 
 
-def run_scene(scene, frames=None):
+def run_scene(scene, frames=None, trace=False):
     """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
     ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
-    (frames, n, 3) array, and the run's counts (a dict)."""
+    (frames, n, 3) array, and the run's counts (a dict; per frame in ``frame_newton_iterations``,
+    ``frame_factorizations``, ``frame_substeps``). With ``trace=True``, ``summary["trace"]`` is a (k, 7)
+    array with a row per accepted Newton iteration, as ``hinge run --trace`` prints them: frame (from 0),
+    iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α (the line search's step length), shift."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
-    return _hinge.run_scene(str(scene), frames)
+    if not isinstance(trace, bool):
+        raise ValueError(f"trace must be True or False, got {trace!r}")
+    return _hinge.run_scene(str(scene), frames, trace)
