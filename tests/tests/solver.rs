@@ -1930,6 +1930,15 @@ fn a_step_test_on_a_step_that_moves_ends_a_time_step_as_before() {
     );
 }
 
+/// The slot of vertex 0's diagonal block (the test energies below act on vertex 0 alone).
+fn vertex0_block(
+    pattern: &hinge_core::pattern::SymmetricPattern,
+) -> Result<usize, hinge_core::EvalError> {
+    pattern.find(0, 0).ok_or(hinge_core::EvalError::Pattern {
+        message: "no diagonal block".into(),
+    })
+}
+
 /// A vertex attracted by `k ln |x − c|` towards the point `c` (force `k/r`, unbounded below at `c`): the
 /// incremental potential `m (r − r̂)²/(2Δt²) + k ln r` along the radius has a local minimum near the
 /// prediction's distance `r̂` only when `r̂² ≥ 4 k Δt²/m`. Without it Newton follows the energy into the
@@ -1953,9 +1962,7 @@ impl Energy for Attractor {
         &mut self,
         pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
     ) -> Result<(), hinge_core::EvalError> {
-        self.diag = pattern.find(0, 0).ok_or(hinge_core::EvalError::Pattern {
-            message: "no diagonal block".into(),
-        })?;
+        self.diag = vertex0_block(pattern)?;
         Ok(())
     }
     fn add_to(
@@ -2096,9 +2103,7 @@ impl Energy for SwitchedWell {
         &mut self,
         pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
     ) -> Result<(), hinge_core::EvalError> {
-        self.diag = pattern.find(0, 0).ok_or(hinge_core::EvalError::Pattern {
-            message: "no diagonal block".into(),
-        })?;
+        self.diag = vertex0_block(pattern)?;
         Ok(())
     }
     fn add_to(
