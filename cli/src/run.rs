@@ -152,6 +152,13 @@ pub struct RunSummary {
     pub interrupted: bool,
     /// The largest accumulated plastic angle (rad) of a run with `[bending.plasticity]`.
     pub max_plastic_angle: Option<f64>,
+    /// Newton iterations of each completed frame (its substeps and failed attempts summed; empty for a
+    /// static solve).
+    pub frame_newton_iterations: Vec<usize>,
+    /// Factorizations of each completed frame.
+    pub frame_factorizations: Vec<usize>,
+    /// Accepted substeps of each completed frame (1 when it took none).
+    pub frame_substeps: Vec<usize>,
 }
 
 impl RunSummary {
@@ -493,6 +500,9 @@ pub fn equilibrium_observed(
         smallest_substep_fraction: 1.0,
         interrupted,
         max_plastic_angle: None,
+        frame_newton_iterations: Vec::new(),
+        frame_factorizations: Vec::new(),
+        frame_substeps: Vec::new(),
     };
     summary.add_work(&stats);
     summary.add_timings(&mut system);
@@ -870,6 +880,9 @@ pub fn simulate_observed(
         smallest_substep_fraction: 1.0,
         interrupted: false,
         max_plastic_angle: None,
+        frame_newton_iterations: Vec::new(),
+        frame_factorizations: Vec::new(),
+        frame_substeps: Vec::new(),
     };
     // Every `every`-th frame (and the last) goes into the animation.
     let every = (scene.frames + 1)
@@ -968,6 +981,9 @@ pub fn simulate_observed(
         summary.add_work(stats);
         summary.final_gradient_norm = stats.gradient_norms.last().copied().unwrap_or(f64::NAN);
         summary.substeps += fs.substeps;
+        summary.frame_newton_iterations.push(stats.iterations);
+        summary.frame_factorizations.push(stats.factorizations);
+        summary.frame_substeps.push(fs.substeps);
         summary.max_final_gradient_norm = summary
             .max_final_gradient_norm
             .max(fs.max_final_gradient_norm);
@@ -1250,6 +1266,9 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         "static": args.statics,
         "interrupted": summary.interrupted,
         "max_plastic_angle": summary.max_plastic_angle,
+        "frame_newton_iterations": summary.frame_newton_iterations,
+        "frame_factorizations": summary.frame_factorizations,
+        "frame_substeps": summary.frame_substeps,
     });
     let path = out.join("summary.json");
     std::fs::write(

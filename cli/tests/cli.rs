@@ -3560,7 +3560,7 @@ fn trace_value(line: &str, key: &str) -> f64 {
 /// `hinge run --trace`: a line per accepted Newton iteration, before its frame's line, numbered from 1 in
 /// each solve, as many as the frame counts, the last at the scene's tolerance; the drape's first 22 frames
 /// include its shifted and extrapolated steps. Tracing changes nothing of the run (summary.json's counts
-/// and results are those of a run without it). `--static` traces every iteration of every membrane stage.
+/// and results are those of a run without it); summary.json's per-frame counts are the frame lines'. `--static` traces every iteration of every membrane stage.
 #[test]
 fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
     let dir = tmp("trace");
@@ -3579,6 +3579,7 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8(o.stdout).unwrap();
     let (mut pending, mut frames, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0, 0);
+    let mut frame_lines = Vec::new();
     for line in text.lines() {
         if let Some(rest) = line.strip_prefix("  newton ") {
             let k: usize = rest.split(':').next().unwrap().parse().unwrap();
@@ -3588,6 +3589,7 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
             pending.push(line);
         } else if line.starts_with("frame ") {
             frames += 1;
+            frame_lines.push(line);
             assert_eq!(iterations_in(line), pending.len(), "{line}");
             let last = pending.last().unwrap();
             assert!(trace_value(last, "|grad F|") <= 1e-6, "{last}");
@@ -3612,6 +3614,41 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
         assert!(!traced[key].is_null(), "{key}");
         assert_eq!(traced[key], plain[key], "{key}");
     }
+    // summary.json's per-frame counts are the frame lines', and sum to the run's.
+    let per_frame = |key: &str| -> Vec<usize> {
+        traced[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as usize)
+            .collect()
+    };
+    let (its, facts, subs) = (
+        per_frame("frame_newton_iterations"),
+        per_frame("frame_factorizations"),
+        per_frame("frame_substeps"),
+    );
+    assert_eq!(its.len(), 22);
+    for (k, line) in frame_lines.iter().enumerate() {
+        assert_eq!(iterations_in(line), its[k], "{line}");
+        assert!(
+            line.contains(&format!(", {} factorizations", facts[k])),
+            "{line}"
+        );
+        assert!(line.contains(&format!(", {} substep", subs[k])), "{line}");
+    }
+    assert_eq!(
+        its.iter().sum::<usize>() as u64,
+        traced["newton_iterations"].as_u64().unwrap()
+    );
+    assert_eq!(
+        facts.iter().sum::<usize>() as u64,
+        traced["factorizations"].as_u64().unwrap()
+    );
+    assert_eq!(
+        subs.iter().sum::<usize>() as u64,
+        traced["substeps"].as_u64().unwrap()
+    );
     // Statics: one line per iteration of every stage, the stages counted up to the final one.
     let o = hinge(&[
         "run",

@@ -916,8 +916,6 @@ pub fn run_scene<'py>(
         )));
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
-    // Per frame: Newton iterations, factorizations, substeps.
-    let mut per_frame: Vec<[usize; 3]> = Vec::with_capacity(sc.frames);
     // The trace's rows, and the frame the observer's iterations belong to (the frames done so far).
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 7]>::new()));
     let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
@@ -946,9 +944,8 @@ pub fn run_scene<'py>(
             Some(stop),
             None,
             observer,
-            |k, fs, _, x| {
+            |k, _, _, x| {
                 xs.push(x.to_vec());
-                per_frame.push([fs.newton.iterations, fs.newton.factorizations, fs.substeps]);
                 frame.store(k + 1, std::sync::atomic::Ordering::Relaxed);
             },
         )
@@ -980,13 +977,9 @@ pub fn run_scene<'py>(
     d.set_item("max_final_gradient_norm", summary.max_final_gradient_norm)?;
     d.set_item("total_seconds", summary.total_seconds)?;
     d.set_item("min_clearance", summary.min_clearance)?;
-    for (key, j) in [
-        ("frame_newton_iterations", 0),
-        ("frame_factorizations", 1),
-        ("frame_substeps", 2),
-    ] {
-        d.set_item(key, per_frame.iter().map(|f| f[j]).collect::<Vec<_>>())?;
-    }
+    d.set_item("frame_newton_iterations", &summary.frame_newton_iterations)?;
+    d.set_item("frame_factorizations", &summary.frame_factorizations)?;
+    d.set_item("frame_substeps", &summary.frame_substeps)?;
     if trace {
         let rows = rows.lock().map(|r| r.clone()).unwrap_or_default();
         let count = rows.len();
