@@ -82,9 +82,10 @@ pub struct RunArgs {
     /// `"interrupted": true` and exits with code 130.
     #[arg(long = "static")]
     pub statics: bool,
-    /// Print a line after every accepted Newton iteration ([`trace_line`]: the iteration, F, ‖∇F‖, the
-    /// step, its length α, the diagonal shift): a frame's lines come before its frame line; with
-    /// `--static` they replace the progress lines. Symplectic Euler has no Newton iterations to show.
+    /// Print a line after every accepted Newton iteration (`  newton I: F = …, |grad F| = … N, |dx| = … m,
+    /// alpha = …, shift = …`: the iteration, F, ‖∇F‖, the step, its length α, the diagonal shift): a frame's
+    /// lines come before its frame line; with `--static` they replace the progress lines. Symplectic Euler
+    /// has no Newton iterations to show.
     #[arg(long)]
     pub trace: bool,
 }
