@@ -3557,48 +3557,48 @@ fn trace_value(line: &str, key: &str) -> f64 {
     rest.split([',', ' ']).next().unwrap().parse().unwrap()
 }
 
-/// `hinge run --trace`: a line per accepted Newton iteration, before its frame's line, numbered from 1 in
-/// each solve, as many as the frame counts, the last at the scene's tolerance; the drape's first 22 frames
-/// include its shifted and extrapolated steps. Tracing changes nothing of the run (summary.json's counts
-/// and results are those of a run without it); summary.json's per-frame counts are the frame lines'. `--static` traces every iteration of every membrane stage.
-#[test]
-fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
-    let dir = tmp("trace");
-    let plain = run_summary(&dir.join("plain"), &["drape", "--frames", "22"]);
+/// Runs `hinge run ARGS` with and without `--trace` (in `dir`) and checks the trace: a line per accepted
+/// Newton iteration, before its frame's line, numbered from 1 in each solve, as many as the frame counts,
+/// the last at the scene's tolerance, with shifted and extrapolated steps among them. Tracing changes
+/// nothing of the run (summary.json's counts and results are those of the run without it), and
+/// summary.json's per-frame counts are the frame lines' and sum to the run's.
+fn check_trace(dir: &Path, args: &[&str], frames: usize) {
+    let plain = run_summary(&dir.join("plain"), args);
     let traced_dir = dir.join("traced");
-    let o = hinge(&[
-        "run",
-        "drape",
-        "--frames",
-        "22",
+    let mut all = vec!["run"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&[
         "--trace",
         "--no-frames",
         "--out",
         traced_dir.to_str().unwrap(),
     ]);
+    let o = hinge(&all);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8(o.stdout).unwrap();
-    let (mut pending, mut frames, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0, 0);
+    let (mut pending, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0);
     let mut frame_lines = Vec::new();
     for line in text.lines() {
         if let Some(rest) = line.strip_prefix("  newton ") {
             let k: usize = rest.split(':').next().unwrap().parse().unwrap();
-            assert_eq!(k, pending.len() + 1, "{line}");
+            assert_eq!(k, pending.len() + 1, "{args:?}: {line}");
             shifted += usize::from(trace_value(line, "shift") > 0.0);
             extrapolated += usize::from(trace_value(line, "alpha") > 1.0);
             pending.push(line);
         } else if line.starts_with("frame ") {
-            frames += 1;
             frame_lines.push(line);
-            assert_eq!(iterations_in(line), pending.len(), "{line}");
+            assert_eq!(iterations_in(line), pending.len(), "{args:?}: {line}");
             let last = pending.last().unwrap();
-            assert!(trace_value(last, "|grad F|") <= 1e-6, "{last}");
+            assert!(trace_value(last, "|grad F|") <= 1e-6, "{args:?}: {last}");
             pending.clear();
         }
     }
-    assert_eq!(frames, 22);
-    assert!(pending.is_empty());
-    assert!(shifted > 0 && extrapolated > 0, "{shifted} {extrapolated}");
+    assert_eq!(frame_lines.len(), frames, "{args:?}");
+    assert!(pending.is_empty(), "{args:?}");
+    assert!(
+        shifted > 0 && extrapolated > 0,
+        "{args:?}: {shifted} {extrapolated}"
+    );
     let traced: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(traced_dir.join("summary.json")).unwrap())
             .unwrap();
@@ -3609,45 +3609,55 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
         "max_final_gradient_norm",
         "far_end_drop",
         "max_speed",
-        "min_clearance_to_sphere",
     ] {
-        assert!(!traced[key].is_null(), "{key}");
-        assert_eq!(traced[key], plain[key], "{key}");
+        assert!(!traced[key].is_null(), "{args:?}: {key}");
+        assert_eq!(traced[key], plain[key], "{args:?}: {key}");
     }
-    // summary.json's per-frame counts are the frame lines', and sum to the run's.
-    let per_frame = |key: &str| -> Vec<usize> {
-        traced[key]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|v| v.as_u64().unwrap() as usize)
-            .collect()
+    assert_eq!(
+        traced["min_clearance_to_sphere"], plain["min_clearance_to_sphere"],
+        "{args:?}"
+    );
+    let per_frame = |key: &str| -> Vec<u64> {
+        let values = traced[key].as_array().unwrap();
+        values.iter().map(|v| v.as_u64().unwrap()).collect()
     };
-    let (its, facts, subs) = (
-        per_frame("frame_newton_iterations"),
-        per_frame("frame_factorizations"),
-        per_frame("frame_substeps"),
-    );
-    assert_eq!(its.len(), 22);
-    for (k, line) in frame_lines.iter().enumerate() {
-        assert_eq!(iterations_in(line), its[k], "{line}");
-        assert!(
-            line.contains(&format!(", {} factorizations", facts[k])),
-            "{line}"
+    for (key, total, label) in [
+        (
+            "frame_newton_iterations",
+            "newton_iterations",
+            " Newton iterations",
+        ),
+        ("frame_factorizations", "factorizations", " factorizations"),
+        ("frame_substeps", "substeps", " substep"),
+    ] {
+        let values = per_frame(key);
+        assert_eq!(values.len(), frames, "{args:?}: {key}");
+        for (line, v) in frame_lines.iter().zip(&values) {
+            assert!(
+                line.contains(&format!(" {v}{label}")),
+                "{args:?}: {key}: {line}"
+            );
+        }
+        assert_eq!(
+            values.iter().sum::<u64>(),
+            traced[total].as_u64().unwrap(),
+            "{args:?}: {key}"
         );
-        assert!(line.contains(&format!(", {} substep", subs[k])), "{line}");
     }
-    assert_eq!(
-        its.iter().sum::<usize>() as u64,
-        traced["newton_iterations"].as_u64().unwrap()
-    );
-    assert_eq!(
-        facts.iter().sum::<usize>() as u64,
-        traced["factorizations"].as_u64().unwrap()
-    );
-    assert_eq!(
-        subs.iter().sum::<usize>() as u64,
-        traced["substeps"].as_u64().unwrap()
+}
+
+/// `hinge run --trace` ([`check_trace`]) on the drape (a bordered sheet on a sphere; its first 22 frames
+/// include its shifted and extrapolated steps) and on a closed shell (`shell-drop` at 162 vertices: an
+/// icosphere falling on a plane, 30 frames, through its collapse); `--static` traces every iteration of
+/// every membrane stage and replaces the progress lines.
+#[test]
+fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
+    let dir = tmp("trace");
+    check_trace(&dir.join("drape"), &["drape", "--frames", "22"], 22);
+    check_trace(
+        &dir.join("shell"),
+        &["shell-drop", "--resolution", "2", "--frames", "30"],
+        30,
     );
     // Statics: one line per iteration of every stage, the stages counted up to the final one.
     let o = hinge(&[

@@ -981,7 +981,10 @@ pub fn run_scene<'py>(
     d.set_item("frame_factorizations", &summary.frame_factorizations)?;
     d.set_item("frame_substeps", &summary.frame_substeps)?;
     if trace {
-        let rows = rows.lock().map(|r| r.clone()).unwrap_or_default();
+        let rows = rows
+            .lock()
+            .map(|mut r| std::mem::take(&mut *r))
+            .unwrap_or_default();
         let count = rows.len();
         let flat: Vec<f64> = rows.into_iter().flatten().collect();
         d.set_item(

@@ -2066,6 +2066,17 @@ struct SwitchedWell {
     diag: usize,
 }
 
+/// The system of one [`SwitchedWell`] (c = 1000, q = 1e5: a well 0.1 m from the origin) at scale `s`.
+fn switched_well(s: f64) -> System {
+    let well = SwitchedWell {
+        c: 1000.0,
+        q: 1e5,
+        s,
+        diag: 0,
+    };
+    System::new(2, vec![Box::new(well)]).unwrap()
+}
+
 impl Energy for SwitchedWell {
     fn name(&self) -> &str {
         "switched well"
@@ -2138,16 +2149,7 @@ impl Energy for SwitchedWell {
 #[test]
 fn a_frame_that_fails_after_a_shifted_substep_leaves_the_solver_as_it_was() {
     let setup = |dt: f64| {
-        let sys = System::new(
-            2,
-            vec![Box::new(SwitchedWell {
-                c: 1000.0,
-                q: 1e5,
-                s: 1.0,
-                diag: 0,
-            })],
-        )
-        .unwrap();
+        let sys = switched_well(1.0);
         let stepper = ImplicitEuler::new(
             &sys,
             dt,
@@ -2221,16 +2223,7 @@ fn a_frame_that_fails_after_a_shifted_substep_leaves_the_solver_as_it_was() {
 #[test]
 fn a_continuation_that_fails_after_a_shifted_stage_leaves_the_solver_as_it_was() {
     let setup = || {
-        let sys = System::new(
-            2,
-            vec![Box::new(SwitchedWell {
-                c: 1000.0,
-                q: 1e5,
-                s: 2.0,
-                diag: 0,
-            })],
-        )
-        .unwrap();
+        let sys = switched_well(2.0);
         let newton = Newton::new(
             &sys,
             &Pins::new(2, vec![1]).unwrap(),
