@@ -805,21 +805,59 @@ def test_run_scene_gives_frames_like_the_cli(tmp_path):
         hinge.run_scene("drape", frames=0)
 
 
-def test_run_scene_counts_per_frame_and_traces_every_iteration():
-    _, _, X, plain = hinge.run_scene("drape", frames=22)
-    _, _, Xt, s = hinge.run_scene("drape", frames=22, trace=True)
+# `shell-drop` at two subdivisions (162 vertices): a closed shell through its collapse on the plane.
+SMALL_SHELL_DROP = """
+name = "shell-drop-small"
+frames = 30
+dt = 0.016666666666666666
+gravity = [0.0, 0.0, -9.81]
+
+[mesh]
+shape = "icosphere"
+subdivisions = 2
+radius = 0.5
+origin = [0.0, 0.0, 0.55]
+
+[material]
+young = 2e5
+poisson = 0.3
+thickness = 5e-4
+density = 0.1
+
+[bending]
+energy = "tan-bending"
+damping = 0.0
+
+[[obstacles]]
+kind = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+stiffness = 2e3
+margin = 0.005
+
+[solver]
+backend = "faer-llt"
+max_iterations = 300
+gradient_tolerance = 1e-6
+"""
+
+
+def check_trace(scene, frames):
+    """A traced run against a plain one: the same run, a trace row per iteration of every frame."""
+    _, _, X, plain = hinge.run_scene(scene, frames=frames)
+    _, _, Xt, s = hinge.run_scene(scene, frames=frames, trace=True)
     assert "trace" not in plain
     # Tracing changes nothing of the run.
     assert np.array_equal(X, Xt)
     for key in ["newton_iterations", "factorizations", "line_search_steps", "max_final_gradient_norm"]:
         assert s[key] == plain[key], key
     its, facts, subs = s["frame_newton_iterations"], s["frame_factorizations"], s["frame_substeps"]
-    assert len(its) == len(facts) == len(subs) == 22
+    assert len(its) == len(facts) == len(subs) == frames
     assert sum(its) == s["newton_iterations"] and sum(facts) == s["factorizations"]
     assert sum(subs) == s["substeps"] and all(f >= i for i, f in zip(its, facts))
     t = s["trace"]
     assert t.shape == (s["newton_iterations"], 7)
-    for k in range(22):
+    for k in range(frames):
         rows = t[t[:, 0] == k]
         assert len(rows) == its[k], k
         # One solve per frame here (no substeps): iterations 1, 2, …, and the last at the tolerance.
@@ -827,6 +865,14 @@ def test_run_scene_counts_per_frame_and_traces_every_iteration():
         assert rows[-1, 3] <= 1e-6, k
     # Shifted and extrapolated steps are in it.
     assert (t[:, 6] > 0).any() and (t[:, 5] > 1).any()
+
+
+def test_run_scene_counts_per_frame_and_traces_every_iteration(tmp_path):
+    # A sheet over a sphere, and a closed shell collapsing on a plane.
+    check_trace("drape", 22)
+    shell = tmp_path / "shell.toml"
+    shell.write_text(SMALL_SHELL_DROP)
+    check_trace(str(shell), 30)
     with pytest.raises(ValueError, match="trace"):
         hinge.run_scene("drape", frames=1, trace="yes")
 
