@@ -47,6 +47,11 @@ pub(super) struct Layout {
     /// increasing state slot, then `3` for none: contributions are added in an order that does not depend on
     /// which corner the face lists first.
     pub tri_assigned: Vec<[u8; 3]>,
+    /// Per element: the value offset just past the block column of the highest storage position it writes
+    /// a block into (its corners and its hinges' x3). Pass 2 zeroes a partition's values only up to here
+    /// before the element adds into them: a frontier that moves through the value array with the
+    /// elements, so the zeroed entries are still in cache when they are added to.
+    pub tri_zero_end: Vec<u32>,
     /// Hinge states in the order the refactored pass consumes them (each hinge right where its upper
     /// triangle T is visited): slot → hinge.
     pub state_order: Vec<u32>,
@@ -157,6 +162,20 @@ impl Layout {
             .map(|&t| tris[t as usize].map(rank))
             .collect();
         let tri_bits = tri_elements.iter().map(|&t| bits[t as usize]).collect();
+        // All the hinges' x3, a superset of the assigned ones the element writes: zeroing ahead is safe.
+        let tri_zero_end = tri_vertices
+            .iter()
+            .zip(&tri_states)
+            .map(|(v, states)| {
+                let mut top = v[0].max(v[1]).max(v[2]);
+                for &st in states {
+                    if st != NONE {
+                        top = top.max(state_vertices[st as usize][3]);
+                    }
+                }
+                pattern.block_col_value_start(top as usize + 1) as u32
+            })
+            .collect();
         let slot = |a: u32, b: u32| {
             pattern
                 .find_storage(a as usize, b as usize)
@@ -214,6 +233,7 @@ impl Layout {
             tri_slots,
             tri_states,
             tri_assigned,
+            tri_zero_end,
             state_order,
             state_vertices,
             hinge_slots,
