@@ -492,6 +492,42 @@ fn energy_only_and_gradient_only_requests_equal_the_full_evaluation_bitwise() {
 }
 
 #[test]
+fn an_output_reused_with_stale_values_gets_the_fresh_evaluation_bitwise() {
+    // Pass 2 zeroes the Hessian values just ahead of the elements (a frontier per partition) instead of
+    // all of them first: every value must still be overwritten, whatever the output held, on meshes
+    // whose elements are not in row order, on one thread and several.
+    for (name, mesh, x) in closed_and_irregular() {
+        let model = BendingModel::new(&mesh, TanBending { k: 1.3 }).unwrap();
+        for par in [SEQ, Parallelism::Rayon] {
+            let fresh = on_threads(2, || {
+                model.evaluate(&x, Request::ALL, Method::Refactored, par)
+            })
+            .unwrap();
+            let mut out = model.new_output();
+            let mut scratch = model.new_scratch();
+            for stale in [7.0, f64::NAN] {
+                out.gradient.fill(stale);
+                out.hessian.fill(stale);
+                on_threads(2, || {
+                    model.evaluate_into(
+                        &x,
+                        Request::ALL,
+                        Method::Refactored,
+                        par,
+                        &mut scratch,
+                        &mut out,
+                    )
+                })
+                .unwrap();
+                assert_eq!(out.energy.to_bits(), fresh.energy.to_bits(), "{name}");
+                assert_eq!(out.gradient, fresh.gradient, "{name} {stale}");
+                assert_eq!(out.hessian, fresh.hessian, "{name} {stale}");
+            }
+        }
+    }
+}
+
+#[test]
 fn value_slots_that_would_overflow_32_bits_are_a_typed_error() {
     // 716 million vertices need 6 values each on the diagonal alone: more than u32 can index.
     let err = SymmetricPattern::new(716_000_000, std::iter::empty()).unwrap_err();
