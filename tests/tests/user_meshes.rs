@@ -495,9 +495,24 @@ fn energy_only_and_gradient_only_requests_equal_the_full_evaluation_bitwise() {
 fn an_output_reused_with_stale_values_gets_the_fresh_evaluation_bitwise() {
     // Pass 2 zeroes the Hessian values just ahead of the elements (a frontier per partition) instead of
     // all of them first: every value must still be overwritten, whatever the output held, on meshes
-    // whose elements are not in row order, on one thread and several.
-    for (name, mesh, x) in closed_and_irregular() {
+    // whose elements are not in row order, on one thread and several. The randomly numbered icosphere of
+    // 2 562 vertices has four partitions and enough hinges to run in parallel: the frontier crosses
+    // partition boundaries.
+    let big = icosphere(4, 1.0).unwrap();
+    let perm = random_permutation(big.n_vertices(), 5);
+    let big = renumber(&big, &perm).unwrap();
+    let xb = big
+        .positions()
+        .iter()
+        .map(|p| p * (1.0 + 0.1 * (3.0 * p.x).sin()))
+        .collect();
+    let mut meshes = closed_and_irregular();
+    meshes.push(("icosphere 2 562, random numbering", big, xb));
+    for (name, mesh, x) in meshes {
         let model = BendingModel::new(&mesh, TanBending { k: 1.3 }).unwrap();
+        if mesh.n_vertices() == 2562 {
+            assert!(model.topology().hinges().len() >= hinge_core::bending::PARALLEL_MIN_HINGES);
+        }
         for par in [SEQ, Parallelism::Rayon] {
             let fresh = on_threads(2, || {
                 model.evaluate(&x, Request::ALL, Method::Refactored, par)
