@@ -2,8 +2,8 @@
 # Newton iteration counts of a scene over an ensemble of nearby starts, to tell a method's effect from the
 # trajectory's sensitivity (a change to Newton changes how the cloth folds, and so the counts, by up to ±15 %
 # for reasons unrelated to the change). Runs the scene five times with its mesh origin's z moved by
-# 0, ±1e-5, 2e-5, 3e-5 m and prints "iterations/factorizations" of each run, sorted (the middle one is the
-# median). Extra arguments are environment assignments for the runs (say, an experiment's switch).
+# 0, ±1e-5, 2e-5, 3e-5 m and prints "iterations/factorizations(per-frame median/max)" of each run, sorted
+# by iterations (the middle one is the median). Extra arguments are environment assignments for the runs (say, an experiment's switch).
 #
 #   cargo build --release -p hinge-cli
 #   target/release/hinge scenes show drape > /tmp/drape.toml
@@ -32,7 +32,15 @@ PY
   line=$(env "$@" "$hinge" run "$tmp/scene.toml" --no-frames --out "$tmp/out" | grep '^done')
   it=$(sed 's/.*frames, \([0-9]*\) Newton.*/\1/' <<< "$line")
   fa=$(sed 's/.*steps, \([0-9]*\) factorizations.*/\1/' <<< "$line")
-  results+=("$it/$fa")
+  # The per-frame median and max (`summary.json`'s frame_newton_iterations).
+  mm=$(python3 - "$tmp/out" <<'PY'
+import glob, json, statistics, sys
+s = json.load(open(glob.glob(sys.argv[1] + "/**/summary.json", recursive=True)[0]))
+f = s["frame_newton_iterations"]
+print(f"{statistics.median(f):g}/{max(f)}")
+PY
+)
+  results+=("$it/$fa($mm)")
 done
 printf '%s\n' "${results[@]}" | sort -n | tr '\n' ' '
 echo
