@@ -3,7 +3,8 @@
 # trajectory's sensitivity (a change to Newton changes how the cloth folds, and so the counts, by up to ±15 %
 # for reasons unrelated to the change). Runs the scene five times with its mesh origin's z moved by
 # 0, ±1e-5, 2e-5, 3e-5 m and prints "iterations/factorizations(per-frame median/max)" of each run, sorted
-# by iterations (the middle one is the median). Extra arguments are environment assignments for the runs (say, an experiment's switch).
+# by iterations (the middle one is the median). Extra arguments are environment assignments for the runs
+# (say, an experiment's switch).
 #
 #   cargo build --release -p hinge-cli
 #   target/release/hinge scenes show drape > /tmp/drape.toml
