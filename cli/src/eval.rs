@@ -15,6 +15,7 @@ use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::neohookean::NeoHookeanMembrane;
 use hinge_energies::quadratic::QuadraticBending;
 use hinge_energies::spring::MassSpring;
 
@@ -22,7 +23,7 @@ use hinge_energies::spring::MassSpring;
 pub type EnergyEntry = (&'static str, &'static [(&'static str, f64)], &'static str);
 
 /// Energies `hinge eval` knows.
-pub const ENERGIES: [EnergyEntry; 13] = [
+pub const ENERGIES: [EnergyEntry; 14] = [
     (
         "discrete-shells",
         &[("k", 1.0)],
@@ -72,6 +73,11 @@ pub const ENERGIES: [EnergyEntry; 13] = [
         "corotational-membrane",
         &[("young", 1000.0), ("poisson", 0.3), ("thickness", 0.001)],
         "co-rotational (shape matching) membrane k/2 A |F - R|^2, k = young*thickness/(1+poisson), exact Hessian",
+    ),
+    (
+        "neo-hookean-membrane",
+        &[("young", 1000.0), ("poisson", 0.3), ("thickness", 0.001)],
+        "compressible neo-Hookean membrane mu/2 (I1 - 2) - mu ln J + lambda/2 ln^2 J, infinite at zero area, exact Hessian",
     ),
     (
         "gravity",
@@ -304,6 +310,10 @@ fn build(
         ),
         "corotational-membrane" => Box::new(
             CorotationalMembrane::from_material(rest, g("young"), g("poisson"), g("thickness"))
+                .map_err(model_err)?,
+        ),
+        "neo-hookean-membrane" => Box::new(
+            NeoHookeanMembrane::new(rest, g("young"), g("poisson"), g("thickness"))
                 .map_err(model_err)?,
         ),
         "gravity" => Box::new(

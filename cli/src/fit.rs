@@ -121,12 +121,12 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         parameter: parameter.into(),
         exponent,
     };
-    let corotational = m.membrane == "corotational";
     let membrane = |stvk_parameter: &str| -> Link {
-        if corotational {
-            power("corotational-membrane.stiffness", 1.0)
-        } else {
-            power(stvk_parameter, 1.0)
+        match m.membrane.as_str() {
+            "corotational" => power("corotational-membrane.stiffness", 1.0),
+            // The same parameters as the StVK membrane's, under the energy's own name.
+            "neo-hookean" => power(&format!("neo-hookean-{stvk_parameter}"), 1.0),
+            _ => power(stvk_parameter, 1.0),
         }
     };
     let positive_start = |v: f64| -> Result<Vec<f64>, String> {

@@ -30,6 +30,7 @@ use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
 use hinge_energies::motion::Motion;
+use hinge_energies::neohookean::NeoHookeanMembrane;
 use hinge_energies::pins::Pins;
 use hinge_solver::linear::{
     ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearSolver, PcgJacobi, default_solver,
@@ -260,6 +261,11 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
                 CorotationalMembrane::from_material(rest, m.young, m.poisson, m.thickness)
                     .map_err(|e| e.to_string())?,
             )
+        } else if m.membrane == "neo-hookean" {
+            Box::new(
+                NeoHookeanMembrane::new(rest, m.young, m.poisson, m.thickness)
+                    .map_err(|e| e.to_string())?,
+            )
         } else {
             Box::new(
                 StvkMembrane::new(rest, m.young, m.poisson, m.thickness)
@@ -379,8 +385,9 @@ pub const STATIC_ITERATIONS: usize = 2000;
 /// The membrane parameter a static solve of `scene` scales, and the scales, ascending and below 1, it passes
 /// through before the scene's own (membrane continuation: [`hinge_solver::statics`]; no scales: none):
 /// `membrane.young` with [`hinge_solver::statics::membrane_scales`] for the StVK membrane, and
-/// `corotational-membrane.stiffness` (k = Y h / (1 + ν), proportional to Y) with
-/// [`hinge_solver::statics::continuation_scales`] of the scene's Y and h for the co-rotational one; none when
+/// `corotational-membrane.stiffness` (k = Y h / (1 + ν), proportional to Y) or `neo-hookean-membrane.young`
+/// with [`hinge_solver::statics::continuation_scales`] of the scene's Y and h for the co-rotational and
+/// neo-Hookean ones; none when
 /// `solver.membrane_continuation` is false.
 ///
 /// # Errors
@@ -393,12 +400,14 @@ pub fn membrane_stages(
     if !scene.solver.membrane_continuation {
         return Ok(("membrane.young", Vec::new()));
     }
-    if scene.material.membrane == "corotational" {
-        let m = &scene.material;
-        return continuation_scales(system, rest, m.young, m.thickness)
-            .map(|s| ("corotational-membrane.stiffness", s));
+    let m = &scene.material;
+    match m.membrane.as_str() {
+        "corotational" => continuation_scales(system, rest, m.young, m.thickness)
+            .map(|s| ("corotational-membrane.stiffness", s)),
+        "neo-hookean" => continuation_scales(system, rest, m.young, m.thickness)
+            .map(|s| ("neo-hookean-membrane.young", s)),
+        _ => membrane_scales(system, rest).map(|s| ("membrane.young", s)),
     }
-    membrane_scales(system, rest).map(|s| ("membrane.young", s))
 }
 
 /// The one-line message of a static solve that failed: the solver's, with a hint when nothing can hold the

@@ -136,8 +136,9 @@ pub struct Material {
     pub thickness: f64,
     /// Mass per area (kg/m²).
     pub density: f64,
-    /// The membrane: `stvk` (St. Venant–Kirchhoff, the default) or `corotational` (the co-rotational
-    /// membrane, k = Y h / (1 + ν)).
+    /// The membrane: `stvk` (St. Venant–Kirchhoff, the default), `corotational` (the co-rotational
+    /// membrane, k = Y h / (1 + ν)) or `neo-hookean` (compressible neo-Hookean: infinite energy at zero
+    /// area, for soft shells that fold).
     #[serde(default = "default_membrane")]
     pub membrane: String,
 }
@@ -861,9 +862,9 @@ impl Scene {
             }
         }
         self.obstacle_motions()?;
-        if !["stvk", "corotational"].contains(&self.material.membrane.as_str()) {
+        if !["stvk", "corotational", "neo-hookean"].contains(&self.material.membrane.as_str()) {
             return Err(format!(
-                "material.membrane: unknown `{}` (stvk, corotational)",
+                "material.membrane: unknown `{}` (stvk, corotational, neo-hookean)",
                 self.material.membrane
             ));
         }
@@ -886,6 +887,13 @@ impl Scene {
         }
         if self.frames == 0 {
             return Err("frames: must be at least 1".into());
+        }
+        if self.frames > crate::limits::MAX_FRAMES {
+            return Err(format!(
+                "frames: {} is more than the limit of {} frames per run",
+                self.frames,
+                crate::limits::MAX_FRAMES
+            ));
         }
         Ok(())
     }

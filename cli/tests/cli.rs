@@ -383,7 +383,7 @@ fn every_listed_energy_evaluates() {
         .lines()
         .map(|l| l.split('\t').next().unwrap().to_string())
         .collect();
-    assert_eq!(names.len(), 13);
+    assert_eq!(names.len(), 14);
     for name in &names {
         let out = dir.join(name);
         let o = hinge(&[
@@ -1786,6 +1786,19 @@ fn thread_and_frame_limits_and_interrupts() {
         assert!(err.contains(words), "{err}");
         assert!(!out.join("frame_0000.obj").exists());
     }
+    // The scene's own `frames` key has the same cap as `--frames` (a scene asking for 2⁶² frames once ran
+    // until killed).
+    let huge = scene_variant(
+        &dir,
+        "huge.toml",
+        "drape",
+        &[("frames = 90", "frames = 4611686018427387904")],
+    );
+    let e = one_line_failure(&["run", huge.to_str().unwrap(), "--no-frames"]);
+    assert!(
+        e.contains("frames: 4611686018427387904") && e.contains("limit"),
+        "{e}"
+    );
     // SIGINT during a run: it stops after the current frame, writes the summary marked interrupted, and
     // exits with 130.
     use std::io::BufRead;
@@ -2749,7 +2762,7 @@ fn moving_obstacles_push_the_cloth_and_are_written_beside_the_frames() {
         (
             "density = 0.1",
             "density = 0.1\nmembrane = \"linear\"",
-            "material.membrane: unknown `linear`",
+            "material.membrane: unknown `linear` (stvk, corotational, neo-hookean)",
         ),
     ] {
         let bad = dir.join("bad.toml");
@@ -2760,7 +2773,7 @@ fn moving_obstacles_push_the_cloth_and_are_written_beside_the_frames() {
 }
 
 #[test]
-fn the_corotational_membrane_runs_in_scenes() {
+fn the_corotational_and_neo_hookean_membranes_run_in_scenes() {
     let dir = tmp("corotational");
     let shown = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
     let file = dir.join("corot.toml");
@@ -2806,6 +2819,10 @@ fn the_corotational_membrane_runs_in_scenes() {
                 "poisson = 0.3\nmembrane = \"corotational\"",
             ),
         ),
+        (
+            "neo-hookean",
+            beam.replace("poisson = 0.3", "poisson = 0.3\nmembrane = \"neo-hookean\""),
+        ),
     ] {
         let file = dir.join(format!("beam3-{name}.toml"));
         std::fs::write(&file, text).unwrap();
@@ -2821,11 +2838,52 @@ fn the_corotational_membrane_runs_in_scenes() {
         assert!(g <= 1e-8, "{name}: {g}");
         drops.push(summary["far_end_drop"].as_f64().unwrap());
     }
-    println!("beam3 static far-end drop, StVK / co-rotational membrane: {drops:?}");
+    println!("beam3 static far-end drop, StVK / co-rotational / neo-Hookean membrane: {drops:?}");
     assert!(
-        drops[0] > 0.01 && (drops[1] / drops[0] - 1.0).abs() < 1e-3,
+        drops[0] > 0.01
+            && (drops[1] / drops[0] - 1.0).abs() < 1e-3
+            && (drops[2] / drops[0] - 1.0).abs() < 1e-3,
         "{drops:?}"
     );
+    // A soft closed shell folding on impact with the neo-Hookean membrane: every step converged, and it
+    // lands and stays a shell.
+    let shell =
+        String::from_utf8_lossy(&hinge(&["scenes", "show", "shell-drop"]).stdout).to_string();
+    assert!(shell.contains("density = 0.1"));
+    let file = dir.join("shell-nh.toml");
+    std::fs::write(
+        &file,
+        shell.replace("density = 0.1", "density = 0.1\nmembrane = \"neo-hookean\""),
+    )
+    .unwrap();
+    let out = dir.join("shell-out");
+    let o = hinge(&[
+        "run",
+        file.to_str().unwrap(),
+        "--resolution",
+        "2",
+        "--frames",
+        "40",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    println!("neo-Hookean shell-drop (162 vertices): {summary}");
+    assert!(summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6);
+    let last = hinge_core::obj::read_obj(out.join("frame_0040.obj")).unwrap();
+    let zmin = last
+        .positions()
+        .iter()
+        .map(|p| p.z)
+        .fold(f64::INFINITY, f64::min);
+    let zmax = last
+        .positions()
+        .iter()
+        .map(|p| p.z)
+        .fold(f64::NEG_INFINITY, f64::max);
+    assert!(zmin > -0.01 && zmin < 0.01 && zmax > 0.2, "{zmin} {zmax}");
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -10,7 +10,8 @@
 //! - [`quadratic::QuadraticBending`] (Bergou et al. 2006) with its constant Hessian precomputed at rest;
 //! - [`membrane::StvkMembrane`], the St. Venant–Kirchhoff triangle membrane, and
 //!   [`corotational::CorotationalMembrane`], the lecture's co-rotational ("shape matching") membrane with
-//!   its exact Hessian;
+//!   its exact Hessian, and [`neohookean::NeoHookeanMembrane`], a compressible neo-Hookean membrane whose
+//!   energy is infinite at zero area (soft shells that fold cannot crush a triangle);
 //! - [`gravity::Gravity`] with lumped masses; [`drag::Drag`], mass-proportional damping (air drag);
 //!   [`contact`]: smooth one-sided penalties against a sphere or a plane; [`pins::Pins`], the constrained
 //!   vertices a solver eliminates.
@@ -107,6 +108,7 @@ pub mod drag;
 pub mod gravity;
 pub mod membrane;
 pub mod motion;
+pub mod neohookean;
 pub mod pins;
 pub mod quadratic;
 pub mod spring;

@@ -216,7 +216,7 @@ impl Energy for StvkMembrane {
 }
 
 /// The positive part of a symmetric 2×2 matrix (eigenvalues clamped at zero), in closed form.
-fn positive_part(s: &Matrix2<f64>) -> Matrix2<f64> {
+pub(crate) fn positive_part(s: &Matrix2<f64>) -> Matrix2<f64> {
     let (a, b, d) = (s[(0, 0)], 0.5 * (s[(0, 1)] + s[(1, 0)]), s[(1, 1)]);
     let mean = 0.5 * (a + d);
     let radius = (0.5 * (a - d)).hypot(b);

@@ -72,15 +72,17 @@
 //! ‖Δx‖ ≤ [`NewtonParams::step_tolerance`] (absolute); a step whose largest vertex displacement is at most
 //! [`NewtonParams::relative_step_tolerance`] × [`NewtonParams::length_scale`] (unit-free: the CLI sets the
 //! length scale to the mean rest edge length). The relative tests are off (0) by default. The two step
-//! tests count only after a full step (`α = 1`) of the exact, unshifted Newton system, or when the
-//! direction's predicted decrease `|∇Fᵀd|` is below the rounding of F (see Rounding: no iteration can make
-//! measurable progress, as for stiff strips whose gradient floors at rounding). A diagonal shift, a
+//! tests count only after a full step (`α = 1`) of the exact, unshifted Newton system, or when that
+//! system's direction predicts a decrease `|∇Fᵀd|` below the rounding of F (see Rounding: no iteration can
+//! make measurable progress, as for stiff strips whose gradient floors at rounding); a shifted or definite
+//! direction predicts a small decrease because of its shift, not because F is at its floor. A diagonal shift, a
 //! Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
 //! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. In a time
 //! step ([`ImplicitEuler`]) a solve that a step test ends above the gradient tests and above √ε times its
 //! start's gradient, with a last step that moves no coordinate by more than a few units in the last place,
 //! is [`SolverError::Stuck`] and the step is retried with substeps: such an iterate cannot move (a
-//! collapsed triangle) and solves nothing.
+//! collapsed triangle) and solves nothing; so is one that a step test ends with ‖∇F‖ at or above its
+//! start's.
 //!
 //! A solve that cannot get closer stops early instead of running to the iteration limit: after
 //! [`STALL_ITERATIONS`] accepted steps in a row that are shorter than [`STALL_STEP`] of the Newton
@@ -809,10 +811,14 @@ impl Newton {
                 s.stats.definite_iterations += 1;
             }
             // What the step tests may trust (module documentation, Stopping): a full step of the exact,
-            // unshifted Newton system, or a direction whose predicted decrease is below F's rounding.
-            let newton_step = !definite && shift == 0.0 && alpha == 1.0;
+            // unshifted Newton system, or an exact Newton direction whose predicted decrease is below F's
+            // rounding. A shifted or definite direction's predicted decrease is small because of its shift
+            // (a triangle collapsing on a public mesh, `spot`, drove the shift to 5e12 and ended a step on
+            // a 6e-15 m step with ‖∇F‖ = 4e3 N before this rule asked for the exact direction).
+            let exact_direction = !definite && shift == 0.0;
+            let newton_step = exact_direction && alpha == 1.0;
             let predicted = dot(&w.g, &w.d).abs();
-            let at_rounding_floor = predicted <= noise;
+            let at_rounding_floor = exact_direction && predicted <= noise;
             // Only the exact Newton direction's predicted decrease measures how far F can still fall: a
             // shifted or damped one is short because of the shift.
             let in_rounding_band = newton_step && predicted <= ROUNDING_BAND * noise;
@@ -1427,9 +1433,11 @@ impl ImplicitEuler {
     /// (`‖Δx‖ ≤ 4ε · max |x|`). Such an iterate cannot move, and it is not the step's solution: on a lumpy closed shell dropped on a plane
     /// (`docs/shells/closed_meshes.py`, frame 28) a triangle collapsed to an altitude of 1e-14 m, Newton's
     /// steps shrank to 1e-18 m with ‖∇F‖ = 3.3e5 N, and the frame was accepted. That solve is now a failed
-    /// step, [`SolverError::Stuck`], which [`ImplicitEuler::advance`] retries with smaller substeps. Steps
-    /// that end on a step test above the tolerance while they still move (a stiff beam whose gradient
-    /// floors at rounding, 2.5e-9 N against 1e-9) are accepted as before.
+    /// step, [`SolverError::Stuck`], which [`ImplicitEuler::advance`] retries with smaller substeps. So is
+    /// a solve that ends on a step test with ‖∇F‖ at or above its start's, however far its last step moved:
+    /// it has solved nothing. Steps that end on a step test above the tolerance while they still move and
+    /// have lowered ‖∇F‖ (a stiff beam whose gradient floors at rounding, 2.5e-9 N against 1e-9) are
+    /// accepted as before.
     fn unstuck(&self, stats: NewtonStats, x: &[Vector3<f64>]) -> Result<NewtonStats, SolverError> {
         if stuck(&self.newton.params, &stats, x) {
             Err(SolverError::Stuck {
@@ -1564,17 +1572,18 @@ impl ImplicitEuler {
 }
 
 /// The test of [`ImplicitEuler::unstuck`]: a solve (`stats`, ending at `x`) that is not converged by the
-/// gradient tests, has not lowered ‖∇F‖ below √ε of its start's, and whose last step moved no coordinate
-/// by more than 4 ulps.
+/// gradient tests, has not lowered ‖∇F‖ below √ε of its start's, and either has not lowered it at all or
+/// ended on a last step that moved no coordinate by more than 4 ulps.
 fn stuck(p: &NewtonParams, stats: &NewtonStats, x: &[Vector3<f64>]) -> bool {
     let first = stats.gradient_norms.first().copied().unwrap_or(0.0);
     let last = stats.gradient_norms.last().copied().unwrap_or(0.0);
     let step = stats.step_norms.last().copied().unwrap_or(f64::INFINITY);
     let size = x.iter().map(|p| p.amax()).fold(0.0, f64::max);
+    let solved_nothing = last >= first;
     !(p.single_iteration
         || p.converged(last, first, None)
         || last <= f64::EPSILON.sqrt() * first
-        || step > 4.0 * f64::EPSILON * size)
+        || (step > 4.0 * f64::EPSILON * size && !solved_nothing))
 }
 
 #[cfg(test)]
@@ -1605,6 +1614,20 @@ mod tests {
         assert!(stuck(&p, &lumpy, &x));
         // The same gradients, but the last step still moves: a step test there is left to Newton.
         assert!(!stuck(&p, &solve(&[9.9e5, 3.3e5], &[1e-13]), &x));
+        // A public closed mesh (`spot`, dropped like `shell-drop`), frame 17 at dt/4: the shift climbed to
+        // 5e12 while a triangle collapsed, steps of 6e-15 m (about 50 ulps of its coordinates) moved it, and
+        // ‖∇F‖ rose from 1.4 to 4e3 N. It solved nothing, so it is stuck although it still moves; the same
+        // solve with ‖∇F‖ lowered (below its start) is left to Newton.
+        let spot = solve(
+            &[1.376, 0.2227, 5.423, 8.415e2, 3.953e3],
+            &[5.5e-2, 1.2e-2, 1.2e-6, 5.8e-15],
+        );
+        assert!(stuck(&p, &spot, &x));
+        assert!(!stuck(
+            &p,
+            &solve(&[1.376, 0.2227, 1.3], &[5.5e-2, 5.8e-15]),
+            &x
+        ));
         // Converged by the gradient: never stuck.
         assert!(!stuck(&p, &solve(&[9.9e5, 9e-7], &[5.5e-18]), &x));
         let tight = NewtonParams {

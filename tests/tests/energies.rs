@@ -16,6 +16,7 @@ use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::neohookean::NeoHookeanMembrane;
 use hinge_energies::quadratic::QuadraticBending;
 use hinge_energies::spring::MassSpring;
 use hinge_tests::*;
@@ -98,6 +99,11 @@ fn all_energies(rest: &TriMesh) -> Vec<(&'static str, Box<dyn Energy>, bool)> {
         (
             "corotational-membrane",
             Box::new(CorotationalMembrane::new(rest, 40.0).unwrap()),
+            true,
+        ),
+        (
+            "neo-hookean-membrane",
+            Box::new(NeoHookeanMembrane::new(rest, 1000.0, 0.3, 0.01).unwrap()),
             true,
         ),
         (

@@ -14,6 +14,7 @@ mod locking;
 mod macro_psi;
 mod mesh_files;
 mod moving_obstacles;
+mod neohookean;
 mod ordering;
 mod plasticity;
 mod psi_fuzz;
