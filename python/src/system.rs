@@ -15,6 +15,7 @@ use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::neohookean::NeoHookeanMembrane;
 use hinge_energies::pins::Pins;
 use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
@@ -35,6 +36,14 @@ use crate::{
     detached, interruptible, mesh_from, parse_hessian, parse_method, psi_spec, value_error,
 };
 
+/// A membrane term's model.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum MembraneKind {
+    Stvk,
+    Corotational,
+    NeoHookean,
+}
+
 /// One term of a system, as specified (built into energies when the system is used).
 #[derive(Clone)]
 enum Term {
@@ -49,7 +58,7 @@ enum Term {
         young: f64,
         poisson: f64,
         thickness: f64,
-        corotational: bool,
+        kind: MembraneKind,
     },
     Springs {
         k: f64,
@@ -112,16 +121,19 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             young,
             poisson,
             thickness,
-            corotational: false,
-        } => Box::new(StvkMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?),
-        Term::Membrane {
-            young,
-            poisson,
-            thickness,
-            corotational: true,
-        } => Box::new(
-            CorotationalMembrane::from_material(rest, *young, *poisson, *thickness).map_err(e)?,
-        ),
+            kind,
+        } => match kind {
+            MembraneKind::Stvk => {
+                Box::new(StvkMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?)
+            }
+            MembraneKind::Corotational => Box::new(
+                CorotationalMembrane::from_material(rest, *young, *poisson, *thickness)
+                    .map_err(e)?,
+            ),
+            MembraneKind::NeoHookean => {
+                Box::new(NeoHookeanMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?)
+            }
+        },
         Term::Springs { k, compressive } => Box::new(
             MassSpring::new(rest, *k)
                 .map_err(e)?
@@ -328,8 +340,9 @@ impl PySystem {
         })
     }
 
-    /// A membrane (Young's modulus, Poisson ratio, thickness): `kind` `stvk` (St. Venant–Kirchhoff) or
-    /// `corotational` (½ k A ‖F − R‖², k = Y h / (1 + ν)).
+    /// A membrane (Young's modulus, Poisson ratio, thickness): `kind` `stvk` (St. Venant–Kirchhoff),
+    /// `corotational` (½ k A ‖F − R‖², k = Y h / (1 + ν)) or `neo-hookean` (compressible neo-Hookean,
+    /// infinite at zero area).
     #[pyo3(signature = (young, poisson, thickness, kind="stvk"))]
     fn add_membrane(
         &mut self,
@@ -338,12 +351,13 @@ impl PySystem {
         thickness: f64,
         kind: &str,
     ) -> PyResult<()> {
-        let corotational = match kind {
-            "stvk" => false,
-            "corotational" => true,
+        let kind = match kind {
+            "stvk" => MembraneKind::Stvk,
+            "corotational" => MembraneKind::Corotational,
+            "neo-hookean" => MembraneKind::NeoHookean,
             other => {
                 return Err(value_error(format!(
-                    "membrane kind: unknown `{other}` (stvk, corotational)"
+                    "membrane kind: unknown `{other}` (stvk, corotational, neo-hookean)"
                 )));
             }
         };
@@ -351,7 +365,7 @@ impl PySystem {
             young,
             poisson,
             thickness,
-            corotational,
+            kind,
         })
     }
 
@@ -466,8 +480,13 @@ impl PySystem {
             .map(|t| match t {
                 Term::Bending { name, .. } => name.clone(),
                 Term::Membrane {
-                    corotational: true, ..
+                    kind: MembraneKind::Corotational,
+                    ..
                 } => "corotational-membrane".into(),
+                Term::Membrane {
+                    kind: MembraneKind::NeoHookean,
+                    ..
+                } => "neo-hookean-membrane".into(),
                 Term::Membrane { .. } => "membrane".into(),
                 Term::Springs { .. } => "mass-spring".into(),
                 Term::Gravity { .. } => "gravity".into(),
@@ -689,11 +708,15 @@ fn continuation(
 ) -> Result<(Vec<String>, Vec<f64>), String> {
     // The membrane terms of one kind with their labels in the system.
     let labels = sys.term_labels();
-    let membranes = |of_kind: bool| -> Vec<(&Term, &String)> {
+    // `young`-carrying (StVK and neo-Hookean) or co-rotational.
+    let membranes = |corotational: bool| -> Vec<(&Term, &String)> {
         terms
             .iter()
             .zip(&labels)
-            .filter(|(t, _)| matches!(t, Term::Membrane { corotational, .. } if *corotational == of_kind))
+            .filter(|(t, _)| {
+                matches!(t, Term::Membrane { kind, .. }
+                    if (*kind == MembraneKind::Corotational) == corotational)
+            })
             .collect()
     };
     let named = |list: &[(&Term, &String)], parameter: &str| -> Vec<String> {
@@ -703,7 +726,7 @@ fn continuation(
     };
     let scalar =
         |sys: &System, name: &str| sys.parameter(name).ok().and_then(|v| v.first().copied());
-    // The StVK membranes act as one of stiffness Σ Yᵢ hᵢ at the first one's thickness.
+    // The StVK (and neo-Hookean) membranes act as one of stiffness Σ Yᵢ hᵢ at the first one's thickness.
     let stvk = membranes(false);
     let (mut yh, mut first_h) = (0.0, None);
     for (_, label) in &stvk {

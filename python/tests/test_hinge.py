@@ -770,6 +770,52 @@ def test_corotational_membrane_matches_finite_differences_and_is_zero_under_rigi
         hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2, kind="linear")
 
 
+def test_neo_hookean_membrane_matches_finite_differences_stvk_at_small_strain_and_its_continuation():
+    V, F = sheet(5, 4, 31, jitter=0.05)
+    s = hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2, kind="neo-hookean")
+    assert s.terms == ["neo-hookean-membrane"]
+    assert s.parameter("neo-hookean-membrane.young") == [1e3]
+    c, sn = np.cos(0.7), np.sin(0.7)
+    R = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    e0, g0 = s.evaluate(V @ R.T + [0.3, -0.2, 1.0], hessian=False)
+    assert abs(e0) < 1e-14 and np.abs(g0).max() < 1e-12
+    rng = np.random.default_rng(3)
+    X = V * [1.1, 0.8, 1.0] + 0.02 * rng.standard_normal(V.shape)
+    e, g, H = s.evaluate(X)
+    H = H.toarray() if hasattr(H, "toarray") else np.asarray(H)
+    H = np.tril(H) + np.tril(H, -1).T if np.allclose(np.triu(H, 1), 0) else H
+    assert e > 0
+    h = 1e-6
+    for i in rng.choice(X.size, 8, replace=False):
+        Xp, Xm = X.copy(), X.copy()
+        Xp.flat[i] += h
+        Xm.flat[i] -= h
+        fd = (s.evaluate(Xp, hessian=False)[0] - s.evaluate(Xm, hessian=False)[0]) / (2 * h)
+        assert abs(fd - g[i]) <= 1e-6 * max(1.0, abs(g[i]))
+        fd_col = (s.evaluate(Xp, hessian=False)[1] - s.evaluate(Xm, hessian=False)[1]) / (2 * h)
+        assert np.abs(fd_col - H[:, i]).max() <= 1e-5 * max(1.0, np.abs(H).max())
+    # At a strain of 1e-4 it is the StVK membrane to first order.
+    Y = V * [1.0 + 1e-4, 1.0 - 5e-5, 1.0]
+    stvk = hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2)
+    e_nh, e_sv = s.evaluate(Y, hessian=False)[0], stvk.evaluate(Y, hessian=False)[0]
+    assert abs(e_nh / e_sv - 1.0) < 1e-3
+    # A stiff strip: the continuation scales its `young` and reaches the same equilibrium.
+    W, G = sheet(24, 3, 41, jitter=0.05)
+    W = W * [0.3, 0.3, 1.0]
+    strip = hinge.System(W, G).add_bending(energy="discrete-shells", k=1e-3)
+    strip.add_membrane(1e10, 0.3, 1e-4, kind="neo-hookean").add_gravity(0.5)
+    strip.pin(np.flatnonzero(W[:, 0] <= W[:, 0].min() + 1e-9 + 0.3 / 12))
+    ends = {}
+    for on in (True, False):
+        Xs, st = hinge.solve_static(strip, W, gradient_tolerance=1e-9, membrane_continuation=on)
+        assert st["final_gradient_norm"] <= 1e-9
+        ends[on] = (Xs, st["newton_iterations"])
+    assert np.abs(ends[True][0] - ends[False][0]).max() < 1e-8
+    print("neo-Hookean strip, Newton iterations with / without the continuation:", ends[True][1], ends[False][1])
+    with pytest.raises(ValueError, match="stvk, corotational, neo-hookean"):
+        hinge.System(V, F).add_membrane(1e3, 0.3, 1e-2, kind="linear")
+
+
 def test_system_bad_input_raises_value_error():
     V, F = sheet(3, 3, 25)
     s = hinge.System(V, F)

@@ -75,8 +75,8 @@
 //! tests count only after a full step (`α = 1`) of the exact, unshifted Newton system, or when that
 //! system's direction predicts a decrease `|∇Fᵀd|` below the rounding of F (see Rounding: no iteration can
 //! make measurable progress, as for stiff strips whose gradient floors at rounding); a shifted or definite
-//! direction predicts a small decrease because of its shift, not because F is at its floor. A diagonal shift, a
-//! Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
+//! direction predicts a small decrease because of its shift, not because F is at its floor. A diagonal
+//! shift, a Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
 //! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. In a time
 //! step ([`ImplicitEuler`]) a solve that a step test ends above the gradient tests and above √ε times its
 //! start's gradient, with a last step that moves no coordinate by more than a few units in the last place,
@@ -86,11 +86,13 @@
 //!
 //! A solve that cannot get closer stops early instead of running to the iteration limit: after
 //! [`STALL_ITERATIONS`] accepted steps in a row that are shorter than [`STALL_STEP`] of the Newton
-//! direction or lie within F's rounding (accepted within it, or full exact Newton steps predicted to change
-//! F by less than [`ROUNDING_BAND`] rounding allowances), none lowering the smallest gradient norm so far by
-//! a tenth, it fails with [`SolverError::Stalled`]. That is where a gradient tolerance lies below what
-//! rounding lets the gradient reach: a strip of Y = 5e9 Pa asked for 1e-9 N crawled at 1.2e-9 … 2.3e-9 for
-//! 2 000 iterations before this rule.
+//! direction or lie within F's rounding (accepted within it, full exact Newton steps predicted to change
+//! F by less than [`ROUNDING_BAND`] rounding allowances, or any step predicted to change it by less than
+//! one allowance — a shifted step along a gradient that no step lowers: a collapsing triangle's, or the
+//! kink of the test `a_shifted_step_below_the_rounding_does_not_end_a_solve`), none lowering the smallest
+//! gradient norm so far by a tenth, it fails with [`SolverError::Stalled`]. That is where a gradient
+//! tolerance lies below what rounding lets the gradient reach: a strip of Y = 5e9 Pa asked for 1e-9 N
+//! crawled at 1.2e-9 … 2.3e-9 for 2 000 iterations before this rule.
 //!
 //! # Rounding
 //! F is a sum over many elements and terms (and the inertia energy), so its rounding error scales with
@@ -358,7 +360,7 @@ pub enum SolverError {
     /// The iterates stopped moving before the tolerances were met: [`STALL_ITERATIONS`] accepted steps in a
     /// row shorter than [`STALL_STEP`] of the Newton direction or within F's rounding, none of which
     /// lowered the smallest gradient norm so far by a tenth (module documentation, Stopping).
-    #[error("stalled after {} iterations at gradient norm {:e}: {STALL_ITERATIONS} steps in a row were shorter than {STALL_STEP:e} of Newton's or within the energy's rounding and lowered it by less than a tenth (the rounding floor of this problem? a gradient tolerance below it cannot be met)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("stalled after {} iterations at gradient norm {:e}: {STALL_ITERATIONS} steps in a row were shorter than {STALL_STEP:e} of Newton's or within the energy's rounding and lowered it by less than a tenth (the rounding floor of this problem, which a gradient tolerance below it cannot meet? or an element collapsing, such as a triangle that a StVK membrane lets be crushed?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     Stalled {
         /// What was done.
         stats: Box<NewtonStats>,
@@ -368,7 +370,7 @@ pub enum SolverError {
     /// place: it stopped where it could not move (a collapsed triangle, say), which is no solution of the
     /// step
     /// ([`ImplicitEuler::advance`] retries the step with smaller substeps).
-    #[error("stuck after {} iterations at gradient norm {:e}: its steps no longer move the positions and the gradient is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("stuck after {} iterations at gradient norm {:e}: its steps no longer move the positions or lower the gradient, which is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     Stuck {
         /// What was done.
         stats: Box<NewtonStats>,
@@ -856,8 +858,14 @@ impl Newton {
             if p.single_iteration || p.converged(gn, g0, step_test) {
                 return Ok(());
             }
-            let short =
-                alpha < STALL_STEP || acceptance == Acceptance::WithinRounding || in_rounding_band;
+            // A step of any direction predicted to change F by less than its rounding makes no
+            // measurable progress either (a shifted step that Armijo's test accepts because F did not
+            // change at all).
+            let below_rounding = alpha * predicted <= noise;
+            let short = alpha < STALL_STEP
+                || acceptance == Acceptance::WithinRounding
+                || in_rounding_band
+                || below_rounding;
             stalled = if short && gn > 0.9 * best {
                 stalled + 1
             } else {

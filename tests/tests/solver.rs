@@ -1939,6 +1939,83 @@ fn vertex0_block(
     })
 }
 
+/// One vertex on a kink with a saddle: `E = c₀ + k |x| − ½ a y²` (a gradient of k = 1e4 N that no step
+/// lowers, like a triangle collapsing under a bending energy's 1/h gradient; a concave direction of
+/// curvature −a = −1e16 N/m, so every factorization needs a shift above a; and a constant c₀ = 1e12 J, so
+/// F's rounding allowance is 2e-3 J).
+struct Kink {
+    diag: usize,
+}
+
+impl Energy for Kink {
+    fn name(&self) -> &str {
+        "kink"
+    }
+    fn n_vertices(&self) -> usize {
+        1
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(
+        &mut self,
+        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), hinge_core::EvalError> {
+        self.diag = vertex0_block(pattern)?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, hinge_core::EvalError> {
+        let (k, a) = (1e4, 1e16);
+        let p = x[0];
+        acc.add_gradient(0, &Vector3::new(k * p.x.signum(), -a * p.y, 0.0));
+        if request.hessian {
+            let h = hinge_core::nalgebra::Matrix3::from_diagonal(&Vector3::new(0.0, -a, 0.0));
+            acc.add_block(self.diag, 0, 0, &h);
+        }
+        Ok(1e12 + k * p.x.abs() - 0.5 * a * p.y * p.y)
+    }
+}
+
+/// A shifted direction whose predicted decrease is below F's rounding does not end a solve on the step
+/// test (hinge_solver::newton, Stopping): on the [`Kink`] the shift climbs above 1e16, the shifted step is
+/// 1e-12 m and predicts a decrease of 1e-8 J, below F's rounding of 2e-3 J. That once returned the solve
+/// as converged at ‖∇F‖ = 1e4 N (a public closed mesh accepted a frame at 4e3 N that way); it now fails
+/// as stalled, leaving the positions untouched.
+#[test]
+fn a_shifted_step_below_the_rounding_does_not_end_a_solve() {
+    let mut sys = System::new(1, vec![Box::new(Kink { diag: 0 })]).unwrap();
+    let pins = Pins::new(1, Vec::new()).unwrap();
+    let params = NewtonParams {
+        gradient_tolerance: 1e-6,
+        max_iterations: 200,
+        ..NewtonParams::default()
+    };
+    let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+    let mut x = vec![Vector3::new(1.0, 0.0, 0.0)];
+    let x0 = x.clone();
+    let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
+    println!("{err}");
+    let stats = err.stats();
+    println!(
+        "max shift {:e}, steps {:?}, gradients {:?}",
+        stats.max_shift,
+        &stats.step_norms[..stats.step_norms.len().min(12)],
+        &stats.gradient_norms[..stats.gradient_norms.len().min(12)]
+    );
+    assert!(stats.max_shift > 1e16, "{}", stats.max_shift);
+    assert!(
+        stats.step_norms.iter().all(|&s| s <= 1e-12),
+        "{:?}",
+        stats.step_norms
+    );
+    assert!(matches!(err, SolverError::Stalled { .. }), "{err}");
+    assert_eq!(x, x0);
+}
+
 /// A vertex attracted by `k ln |x − c|` towards the point `c` (force `k/r`, unbounded below at `c`): the
 /// incremental potential `m (r − r̂)²/(2Δt²) + k ln r` along the radius has a local minimum near the
 /// prediction's distance `r̂` only when `r̂² ≥ 4 k Δt²/m`. Without it Newton follows the energy into the
