@@ -43,6 +43,78 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 
+/// The four parameter methods of [`hinge_core::energy::Energy`] for a membrane proportional to its Young's
+/// modulus and to its thickness (fields `young` and `thickness`, and `fn set_young(&mut self, f64)`, which
+/// recomputes the Lamé constants): `young` (Pa, ≥ 0) and `thickness` (m, > 0). Derivatives from the energy
+/// evaluated with the parameter set to 1, then put back (`set_young` recomputes μ and λ by the same
+/// formulas, so they come back bitwise).
+macro_rules! young_thickness_parameters {
+    () => {
+        fn parameters(&self) -> Vec<hinge_core::energy::Parameter> {
+            ["young", "thickness"]
+                .map(|n| hinge_core::energy::Parameter {
+                    name: n.into(),
+                    len: 1,
+                })
+                .to_vec()
+        }
+
+        fn parameter(&self, name: &str) -> Result<Vec<f64>, hinge_core::EvalError> {
+            match name {
+                "young" => Ok(vec![self.young]),
+                "thickness" => Ok(vec![self.thickness]),
+                _ => Err(hinge_core::energy::unknown_parameter(
+                    name,
+                    &self.parameters(),
+                )),
+            }
+        }
+
+        fn set_parameter(
+            &mut self,
+            name: &str,
+            values: &[f64],
+        ) -> Result<(), hinge_core::EvalError> {
+            match name {
+                "young" => self.set_young(crate::util::scalar_value(name, values, 0.0)?),
+                "thickness" => {
+                    self.thickness = crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
+                }
+                _ => {
+                    return Err(hinge_core::energy::unknown_parameter(
+                        name,
+                        &self.parameters(),
+                    ));
+                }
+            }
+            Ok(())
+        }
+
+        fn add_parameter_derivatives(
+            &mut self,
+            x: &[hinge_core::nalgebra::Vector3<f64>],
+            name: &str,
+            out: &mut hinge_core::energy::ParameterOutput,
+        ) -> Result<(), hinge_core::EvalError> {
+            let (young, thickness) = (self.young, self.thickness);
+            match name {
+                "young" => self.set_young(1.0),
+                "thickness" => self.thickness = 1.0,
+                _ => {
+                    return Err(hinge_core::energy::unknown_parameter(
+                        name,
+                        &self.parameters(),
+                    ));
+                }
+            }
+            let r = crate::util::add_proportional_derivatives(self, x, name, out);
+            self.set_young(young);
+            self.thickness = thickness;
+            r
+        }
+    };
+}
+
 /// The four parameter methods of [`hinge_core::energy::Energy`] for an energy proportional to one
 /// non-negative scalar field (`E(p) = p · E(1)`), exposed under `$name`: derivatives from the energy evaluated
 /// with the field set to 1 ([`util::add_proportional_derivatives`]).
@@ -262,6 +334,14 @@ pub(crate) mod util {
     }
 
     /// Young's modulus `Y ≥ 0`, Poisson ratio `−1 < ν < 0.5` and thickness `h > 0`, all finite.
+    /// The plane-stress Lamé constants `(μ, λ) = (Y/(2(1 + ν)), Yν/(1 − ν²))` of the triangle membranes.
+    pub fn plane_stress_lame(young: f64, poisson: f64) -> (f64, f64) {
+        (
+            young / (2.0 * (1.0 + poisson)),
+            young * poisson / (1.0 - poisson * poisson),
+        )
+    }
+
     pub fn check_material(
         energy: &str,
         young: f64,

@@ -23,7 +23,7 @@
 use std::sync::Arc;
 
 use hinge_core::bending::{Parallelism, Request};
-use hinge_core::energy::{Accumulator, Energy, Parameter, ParameterOutput, unknown_parameter};
+use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2, Vector3};
 use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{EvalError, TriMesh};
@@ -58,11 +58,12 @@ impl StvkMembrane {
     ) -> Result<Self, EvalError> {
         crate::util::check_material("membrane", young, poisson, thickness)?;
         let rest_data = crate::util::triangle_rest_shapes(rest, "membrane")?;
+        let (mu, lambda) = crate::util::plane_stress_lame(young, poisson);
         Ok(Self {
             young,
             poisson,
-            mu: young / (2.0 * (1.0 + poisson)),
-            lambda: young * poisson / (1.0 - poisson * poisson),
+            mu,
+            lambda,
             thickness,
             triangles: rest.triangles().to_vec(),
             rest: rest_data,
@@ -85,61 +86,13 @@ impl StvkMembrane {
 
     fn set_young(&mut self, young: f64) {
         self.young = young;
-        self.mu = young / (2.0 * (1.0 + self.poisson));
-        self.lambda = young * self.poisson / (1.0 - self.poisson * self.poisson);
+        (self.mu, self.lambda) = crate::util::plane_stress_lame(young, self.poisson);
     }
 }
 
 impl Energy for StvkMembrane {
-    /// `young` (Pa, ≥ 0) and `thickness` (m, > 0): the energy is proportional to each.
-    fn parameters(&self) -> Vec<Parameter> {
-        ["young", "thickness"]
-            .map(|n| Parameter {
-                name: n.into(),
-                len: 1,
-            })
-            .to_vec()
-    }
-
-    fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
-        match name {
-            "young" => Ok(vec![self.young]),
-            "thickness" => Ok(vec![self.thickness]),
-            _ => Err(unknown_parameter(name, &self.parameters())),
-        }
-    }
-
-    fn set_parameter(&mut self, name: &str, values: &[f64]) -> Result<(), EvalError> {
-        match name {
-            "young" => self.set_young(crate::util::scalar_value(name, values, 0.0)?),
-            "thickness" => {
-                let h = crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
-                self.thickness = h;
-            }
-            _ => return Err(unknown_parameter(name, &self.parameters())),
-        }
-        Ok(())
-    }
-
-    fn add_parameter_derivatives(
-        &mut self,
-        x: &[Vector3<f64>],
-        name: &str,
-        out: &mut ParameterOutput,
-    ) -> Result<(), EvalError> {
-        // Evaluated with the parameter set to 1, then put back (set_young recomputes μ and λ by the
-        // constructor's formulas, so they come back bitwise).
-        let (young, thickness) = (self.young, self.thickness);
-        match name {
-            "young" => self.set_young(1.0),
-            "thickness" => self.thickness = 1.0,
-            _ => return Err(unknown_parameter(name, &self.parameters())),
-        }
-        let r = crate::util::add_proportional_derivatives(self, x, name, out);
-        self.set_young(young);
-        self.thickness = thickness;
-        r
-    }
+    // `young` (Pa, ≥ 0) and `thickness` (m, > 0): the energy is proportional to each.
+    young_thickness_parameters!();
 
     fn name(&self) -> &str {
         "membrane"

@@ -270,8 +270,9 @@ class System:
         return self
 
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
-        """A membrane: ``kind`` "stvk" (St. Venant-Kirchhoff) or "corotational" (k/2 A |F - R|^2 with
-        k = young * thickness / (1 + poisson), exact Hessian)."""
+        """A membrane: ``kind`` "stvk" (St. Venant-Kirchhoff), "corotational" (k/2 A |F - R|^2 with
+        k = young * thickness / (1 + poisson), exact Hessian) or "neo-hookean" (compressible neo-Hookean
+        with St. Venant-Kirchhoff's Lame constants, infinite energy at zero area, exact Hessian)."""
         self._s.add_membrane(float(young), float(poisson), float(thickness), str(kind))
         return self
 
