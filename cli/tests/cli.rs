@@ -1236,6 +1236,16 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// The lowest and highest z of a frame file's vertices.
+fn z_range(frame: &Path) -> (f64, f64) {
+    let mesh = hinge_core::obj::read_obj(frame).unwrap();
+    let z = mesh.positions().iter().map(|p| p.z);
+    (
+        z.clone().fold(f64::INFINITY, f64::min),
+        z.fold(f64::NEG_INFINITY, f64::max),
+    )
+}
+
 #[test]
 fn shell_drop_falls_onto_the_plane_and_rests_there() {
     let dir = tmp("shell");
@@ -1253,17 +1263,7 @@ fn shell_drop_falls_onto_the_plane_and_rests_there() {
     assert_eq!(summary["frames"], 60);
     assert_eq!(summary["n_vertices"], 162);
     assert!(summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6);
-    let last = hinge_core::obj::read_obj(dir.join("frame_0060.obj")).unwrap();
-    let zmin = last
-        .positions()
-        .iter()
-        .map(|p| p.z)
-        .fold(f64::INFINITY, f64::min);
-    let zmax = last
-        .positions()
-        .iter()
-        .map(|p| p.z)
-        .fold(f64::NEG_INFINITY, f64::max);
+    let (zmin, zmax) = z_range(&dir.join("frame_0060.obj"));
     println!(
         "shell-drop (162 vertices): lowest z {zmin:.4} m, highest {zmax:.4} m after 1 s, {summary}"
     );
@@ -2872,17 +2872,7 @@ fn the_corotational_and_neo_hookean_membranes_run_in_scenes() {
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     println!("neo-Hookean shell-drop (162 vertices): {summary}");
     assert!(summary["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6);
-    let last = hinge_core::obj::read_obj(out.join("frame_0040.obj")).unwrap();
-    let zmin = last
-        .positions()
-        .iter()
-        .map(|p| p.z)
-        .fold(f64::INFINITY, f64::min);
-    let zmax = last
-        .positions()
-        .iter()
-        .map(|p| p.z)
-        .fold(f64::NEG_INFINITY, f64::max);
+    let (zmin, zmax) = z_range(&out.join("frame_0040.obj"));
     assert!(zmin > -0.01 && zmin < 0.01 && zmax > 0.2, "{zmin} {zmax}");
     std::fs::remove_dir_all(dir).unwrap();
 }

@@ -214,10 +214,11 @@ impl Energy for NeoHookeanMembrane {
                     (s, mu - lambda * log_j)
                 };
                 let fpf = f * p * f.transpose();
-                let fq: [Vector3<f64>; 3] = [0, 1, 2].map(|v| f * (p * b[v]));
+                let q = [0, 1, 2].map(|v| p * b[v]);
+                let fq: [Vector3<f64>; 3] = q.map(|qv| f * qv);
                 let block = |v: usize, u: usize| -> Matrix3<f64> {
                     (Matrix3::identity() * b[v].dot(&(s * b[u]))
-                        + fpf * (cm * b[v].dot(&(p * b[u])))
+                        + fpf * (cm * b[v].dot(&q[u]))
                         + fq[u] * fq[v].transpose() * cm
                         + fq[v] * fq[u].transpose() * lambda)
                         * w

@@ -409,3 +409,19 @@ impl hinge_core::energy::Energy for StepGate {
         Ok(())
     }
 }
+
+/// A stretched, compressed, bent and jittered deformation of `rest` (seeded): some triangles in tension,
+/// some compressed — the membranes' derivative tests.
+pub fn membrane_deformation(rest: &hinge_core::TriMesh, seed: u64) -> Vec<Vector3<f64>> {
+    let mut rng = SplitMix64(seed);
+    rest.positions()
+        .iter()
+        .map(|p| {
+            Vector3::new(
+                1.08 * p.x + 0.3 * p.z + 0.02 * rng.symmetric(),
+                0.9 * p.y + 0.02 * rng.symmetric(),
+                0.95 * p.z + 0.2 * (2.0 * p.x).sin() + 0.02 * rng.symmetric(),
+            )
+        })
+        .collect()
+}

@@ -40,21 +40,6 @@ fn evaluate(rest: &TriMesh, x: &[Vector3<f64>], definite: bool) -> (f64, Vec<f64
     )
 }
 
-/// A stretched, compressed, bent and jittered deformation: some triangles in tension, some compressed.
-fn deform(rest: &TriMesh, seed: u64) -> Vec<Vector3<f64>> {
-    let mut rng = SplitMix64(seed);
-    rest.positions()
-        .iter()
-        .map(|p| {
-            Vector3::new(
-                1.08 * p.x + 0.3 * p.z + 0.02 * rng.symmetric(),
-                0.9 * p.y + 0.02 * rng.symmetric(),
-                0.95 * p.z + 0.2 * (2.0 * p.x).sin() + 0.02 * rng.symmetric(),
-            )
-        })
-        .collect()
-}
-
 /// The per-triangle energy in an independent closed form, for num-dual: with the rest Gram matrix G and
 /// the deformed one g of the two edges from corner 0, M = G⁻¹g has the eigenvalues σᵢ², so
 /// ‖F − R‖² = Σ(σᵢ − 1)² = tr M − 2 √(tr M + 2 √det M) + 2.
@@ -133,7 +118,7 @@ fn exact_derivatives_match_finite_differences_on_users_meshes() {
         ("slivers", sliver_sheet(6, 4).unwrap()),
     ];
     for (name, rest) in meshes {
-        let x = deform(&rest, 9);
+        let x = membrane_deformation(&rest, 9);
         let (e, g, h) = evaluate(&rest, &x, false);
         let mut s = system(&rest, 3.0);
         let (fd_g, fd_h) = fd_energy_derivatives(&x, 1e-6, |y| {
@@ -170,7 +155,7 @@ fn zero_at_rest_and_under_rigid_motions_and_the_same_for_every_corner_rotation()
     }
     // Each triangle's corners rotated (a, b, c) → (b, c, a), and twice: the same energy and derivatives
     // (another rest frame, so to rounding).
-    let x = deform(&rest, 4);
+    let x = membrane_deformation(&rest, 4);
     let (e0, g0, h0) = evaluate(&rest, &x, false);
     for shift in 1..3 {
         let tris: Vec<[usize; 3]> = rest
@@ -193,7 +178,7 @@ fn definite_hessian_is_psd_and_exact_in_tension() {
     )
     .unwrap();
     // Compressed and folded: the exact Hessian is indefinite, the definite one is not.
-    let x = deform(&rest, 1)
+    let x = membrane_deformation(&rest, 1)
         .iter()
         .map(|p| Vector3::new(0.6 * p.x, p.y, p.z))
         .collect::<Vec<_>>();
@@ -288,7 +273,7 @@ fn definite_hessian_is_psd_and_exact_in_tension() {
 #[test]
 fn degenerate_triangles_are_named() {
     let rest = irregular_sheet(4, 4, 1).unwrap();
-    let mut x = deform(&rest, 2);
+    let mut x = membrane_deformation(&rest, 2);
     let t = rest.triangles()[5];
     // Collapse triangle 5 onto a line: its third corner on the line of the other two.
     x[t[2]] = x[t[0]] * 0.3 + x[t[1]] * 0.7;

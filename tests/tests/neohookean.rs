@@ -50,21 +50,6 @@ fn evaluate(rest: &TriMesh, x: &[Vector3<f64>], definite: bool) -> (f64, Vec<f64
     )
 }
 
-/// A stretched, compressed, bent and jittered deformation: some triangles in tension, some compressed.
-fn deform(rest: &TriMesh, seed: u64) -> Vec<Vector3<f64>> {
-    let mut rng = SplitMix64(seed);
-    rest.positions()
-        .iter()
-        .map(|p| {
-            Vector3::new(
-                1.08 * p.x + 0.3 * p.z + 0.02 * rng.symmetric(),
-                0.9 * p.y + 0.02 * rng.symmetric(),
-                0.95 * p.z + 0.2 * (2.0 * p.x).sin() + 0.02 * rng.symmetric(),
-            )
-        })
-        .collect()
-}
-
 /// The per-triangle energy in an independent closed form, for num-dual: with the rest Gram matrix G and
 /// the deformed one g of the two edges from corner 0, M = G⁻¹g has the eigenvalues σᵢ², so I₁ = tr M and
 /// J² = det M: W = μ/2 (tr M − 2) − μ/2 ln det M + λ/8 (ln det M)².
@@ -142,7 +127,7 @@ fn exact_derivatives_match_finite_differences_on_users_meshes() {
         ("slivers", sliver_sheet(6, 4).unwrap()),
     ];
     for (name, rest) in meshes {
-        let x = deform(&rest, 9);
+        let x = membrane_deformation(&rest, 9);
         let (e, g, h) = evaluate(&rest, &x, false);
         let mut s = system(&rest);
         let (fd_g, fd_h) = fd_energy_derivatives(&x, 1e-6, |y| {
@@ -179,7 +164,7 @@ fn zero_at_rest_and_under_rigid_motions_and_the_same_for_every_corner_rotation()
     }
     // Each triangle's corners rotated (a, b, c) → (b, c, a), and twice: the same energy and derivatives
     // (another rest frame, so to rounding).
-    let x = deform(&rest, 4);
+    let x = membrane_deformation(&rest, 4);
     let (e0, g0, h0) = evaluate(&rest, &x, false);
     for shift in 1..3 {
         let tris: Vec<[usize; 3]> = rest
@@ -208,7 +193,7 @@ fn definite_hessian_is_psd_and_exact_in_moderate_tension() {
     };
     // Compressed and folded: the exact Hessian is indefinite, the definite one is not. Strongly stretched
     // (λ ln J > μ, so the material part's coefficient c is negative): the same.
-    let compressed: Vec<Vector3<f64>> = deform(&rest, 1)
+    let compressed: Vec<Vector3<f64>> = membrane_deformation(&rest, 1)
         .iter()
         .map(|p| Vector3::new(0.6 * p.x, p.y, p.z))
         .collect();
@@ -331,7 +316,7 @@ fn small_strains_agree_with_stvk_and_crushing_costs_without_bound() {
 #[test]
 fn crushed_triangles_are_named() {
     let rest = irregular_sheet(4, 4, 1).unwrap();
-    let mut x = deform(&rest, 2);
+    let mut x = membrane_deformation(&rest, 2);
     let t = rest.triangles()[5];
     // Crush triangle 5 onto a line (exactly: its corners on a line parallel to x). Nearly crushed, rounded
     // onto the line through two corners, its energy is finite and huge (the cross product of its edges
@@ -340,7 +325,7 @@ fn crushed_triangles_are_named() {
     let mut y = x.clone();
     y[t[2]] = x[t[0]] * 0.25 + x[t[1]] * 0.75;
     let mut near = system(&rest);
-    let (e_ok, _, _) = evaluate(&rest, &deform(&rest, 2), false);
+    let (e_ok, _, _) = evaluate(&rest, &membrane_deformation(&rest, 2), false);
     let e_near = near
         .evaluate(&y, Request::VALUE, Parallelism::Sequential)
         .map_or(f64::INFINITY, |r| r.energy);
@@ -369,7 +354,7 @@ fn crushed_triangles_are_named() {
         other => panic!("{other}"),
     }
     // NaN positions are named the same way, never a silent NaN.
-    let mut y = deform(&rest, 2);
+    let mut y = membrane_deformation(&rest, 2);
     y[t[1]].x = f64::NAN;
     assert!(
         s.evaluate(&y, Request::ALL, Parallelism::Sequential)
