@@ -27,7 +27,7 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
     file.topology().map_err(|e| e.to_string())?;
     if file.polygons_split > 0 {
         eprintln!(
-            "hinge: {}: {} faces with more than three corners fan-triangulated ({} triangles in all)",
+            "hinge: warning: {}: {} faces with more than three corners fan-triangulated ({} triangles in all)",
             path.display(),
             file.polygons_split,
             file.mesh.n_triangles()
@@ -38,7 +38,7 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
     if let Some(&first) = unreferenced.first() {
         let one = unreferenced.len() == 1;
         eprintln!(
-            "hinge: {}: {} {} in no face (the first: {}); held where {}",
+            "hinge: warning: {}: {} {} in no face (the first: {}); held where {}",
             path.display(),
             unreferenced.len(),
             if one { "vertex is" } else { "vertices are" },
@@ -49,7 +49,7 @@ pub fn read_numbered(path: &Path) -> Result<(TriMesh, FileNumbering), String> {
     let coincident = file.mesh.coincident_vertices();
     if let Some(&(v, first)) = coincident.first() {
         eprintln!(
-            "hinge: {}: {} {} exactly on another vertex (the first: {} on {}); nothing couples them, so the \
+            "hinge: warning: {}: {} {} exactly on another vertex (the first: {} on {}); nothing couples them, so the \
              surface is cut there (UV seams?): weld them if they should be one",
             path.display(),
             coincident.len(),

@@ -487,7 +487,7 @@ pub fn run(args: FitArgs) -> Result<(), String> {
     }
     let (threads, warning) = crate::limits::threads(args.threads)?;
     if let Some(w) = warning {
-        eprintln!("hinge: {w}");
+        eprintln!("{w}");
     }
     let (rest, names) = scene.rest_mesh_numbered(base.as_deref())?;
     let (target, target_names) = crate::files::read_numbered(&args.target)?;

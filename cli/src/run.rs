@@ -16,7 +16,7 @@ use hinge_core::anisotropy::Anisotropic;
 use hinge_core::bending::{BendingModel, Method};
 use hinge_core::energy::Plasticity;
 use hinge_core::energy::{Energy, HingeTerm, System};
-use hinge_core::error::Num;
+use hinge_core::error::{ElementNames, Num};
 use hinge_core::meshio::{FileNumbering, MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
@@ -199,6 +199,70 @@ pub struct Built {
     pub params: NewtonParams,
     /// The obstacles at t = 0 with their motions (for the clearance report and the pictures).
     pub obstacles: Vec<(Obstacle, Option<Motion>)>,
+    /// Rest hinges at least [`STIFF_REST`] times stiffer than flat, if any (a set-up warning, and the
+    /// likely cause when a step then fails).
+    pub stiff_rest: Option<StiffRest>,
+}
+
+/// A rest stiffening `ψ″(θ̄) / ψ″(0)` ([`BendingModel::rest_stiffening`]) from which the scene gets a
+/// set-up warning: a million, the tan energy's at |θ̄| = 3.09 rad (a crease folded to 3° of flat). The
+/// public `cow` mesh has such hinges: its hardest frames take over 1 000 Newton iterations.
+pub const STIFF_REST: f64 = 1e6;
+
+/// The rest hinges a scene's bending makes at least [`STIFF_REST`] times stiffer than flat.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StiffRest {
+    /// How many.
+    pub count: usize,
+    /// The stiffest one's vertices `[x0, x1, x2, x3]` (the edge x1–x2, 0-based in the mesh).
+    pub vertices: [usize; 4],
+    /// Its rest angle θ̄ (rad).
+    pub theta_bar: f64,
+    /// Its stiffening (∞ when ψ″(θ̄) is not finite).
+    pub stiffening: f64,
+}
+
+impl StiffRest {
+    /// The stiff rest hinges of `model`, if any.
+    pub fn of<P: HingePsi>(model: &BendingModel<P>) -> Option<Self> {
+        let ratios = model.rest_stiffening();
+        let stiff = |r: &Option<f64>| r.is_some_and(|r| r >= STIFF_REST);
+        let count = ratios.iter().filter(|r| stiff(r)).count();
+        let (hinge, stiffening) = ratios
+            .iter()
+            .enumerate()
+            .filter_map(|(i, r)| r.filter(|&r| r >= STIFF_REST).map(|r| (i, r)))
+            .fold(None, |best: Option<(usize, f64)>, (i, r)| match best {
+                Some((_, b)) if b >= r => best,
+                _ => Some((i, r)),
+            })?;
+        Some(Self {
+            count,
+            vertices: model.topology().hinges().get(hinge)?.vertices,
+            theta_bar: model.hinge_quantities(hinge)?.theta_bar,
+            stiffening,
+        })
+    }
+
+    /// One line naming the stiffest hinge by its vertices (with `names`, as the mesh file counts them).
+    pub fn describe(&self, names: Option<&FileNumbering>) -> String {
+        let v = |i: usize| names.map_or_else(|| i.to_string(), |n| n.vertex_number(i));
+        format!(
+            "{} rest {} at least {:.0e} times stiffer than flat, by ψ″(θ̄)/ψ″(0): the stiffest, {:.1e} times, is \
+             the hinge on the edge between vertices {} and {} at θ̄ = {:.4} rad",
+            self.count,
+            if self.count == 1 {
+                "hinge is"
+            } else {
+                "hinges are"
+            },
+            STIFF_REST,
+            self.stiffening,
+            v(self.vertices[1]),
+            v(self.vertices[2]),
+            self.theta_bar
+        )
+    }
 }
 
 /// Builds the energies of `scene` on `rest` (with the scene's viscous damping when `damped`).
@@ -243,7 +307,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             hardening: p.hardening,
         }),
     };
-    let bending = match scene.bending.energy.as_str() {
+    let (bending, stiff_rest) = match scene.bending.energy.as_str() {
         "discrete-shells" => bending_term(rest, DiscreteShells { k }, f)?,
         "willmore" => bending_term(rest, Willmore { k }, f)?,
         "bridson" => bending_term(rest, Bridson { k }, f)?,
@@ -347,6 +411,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         solver,
         params,
         obstacles,
+        stiff_rest,
     })
 }
 
@@ -467,8 +532,10 @@ pub fn equilibrium_observed(
         solver,
         params,
         obstacles,
+        stiff_rest,
         ..
     } = build(scene, rest, false)?;
+    warn_stiff_rest(stiff_rest.as_ref(), &scene.bending.energy, names);
     // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
     // 1e9 at h = 0.1 mm) take hundreds of damped Newton steps to swing down: statics gets a larger budget.
     let params = NewtonParams {
@@ -488,7 +555,14 @@ pub fn equilibrium_observed(
             Ok(stats) => (stats, false),
             // Stopped on request: the summary says so, and no equilibrium is written (`x` is the start).
             Err(SolverError::Interrupted { stats }) => (*stats, true),
-            Err(e) => return Err(static_failure(&e, unsupported, names)),
+            Err(e) => {
+                return Err(with_stiff_rest(
+                    static_failure(&e, unsupported, names),
+                    stiff_rest.as_ref(),
+                    &scene.bending.energy,
+                    names,
+                ));
+            }
         };
     let mut summary = RunSummary {
         frames: 0,
@@ -642,11 +716,14 @@ struct HingeOptions<'a> {
     plasticity: Option<Plasticity>,
 }
 
+/// A scene's bending term, with its stiff rest hinges ([`StiffRest`]).
+type BendingTerm = (Box<dyn Energy>, Option<StiffRest>);
+
 fn bending_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
     o: HingeOptions<'_>,
-) -> Result<Box<dyn Energy>, String>
+) -> Result<BendingTerm, String>
 where
     P::Params: Send + Sync,
 {
@@ -660,14 +737,14 @@ fn hinge_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
     o: HingeOptions<'_>,
-) -> Result<Box<dyn Energy>, String>
+) -> Result<BendingTerm, String>
 where
     P::Params: Send + Sync,
 {
     fn finish<Q: HingePsi + Send + 'static>(
         mut model: BendingModel<Q>,
         o: HingeOptions<'_>,
-    ) -> Result<Box<dyn Energy>, String>
+    ) -> Result<BendingTerm, String>
     where
         Q::Params: Send + Sync,
     {
@@ -676,13 +753,15 @@ where
                 .set_rest_angles(t)
                 .map_err(|e| format!("bending.rest_angles: {e}"))?;
         }
+        let stiff = StiffRest::of(&model);
         let term = HingeTerm::new("bending", model, Method::Refactored);
-        Ok(Box::new(match o.plasticity {
+        let term: Box<dyn Energy> = Box::new(match o.plasticity {
             Some(p) => term
                 .with_plasticity(p)
                 .map_err(|e| format!("bending.plasticity: {e}"))?,
             None => term,
-        }))
+        });
+        Ok((term, stiff))
     }
     let err = |e: hinge_core::EvalError| e.to_string();
     if o.damping > 0.0 {
@@ -749,6 +828,45 @@ fn check_initial_state(
         })
 }
 
+/// The set-up warning of a scene with stiff rest hinges ([`StiffRest`]), one line on stderr.
+fn warn_stiff_rest(stiff: Option<&StiffRest>, energy: &str, names: Option<&FileNumbering>) {
+    if let Some(s) = stiff {
+        eprintln!(
+            "hinge: warning: {}{}; Newton may need many iterations and substeps",
+            s.describe(names),
+            tan_note(energy)
+        );
+    }
+}
+
+/// A failed solve's one-line `message`, with the scene's stiff rest hinges as the likely cause when it has
+/// any: a solve that stalls or gets stuck there otherwise says only what it saw (short steps, a collapsed
+/// triangle?).
+fn with_stiff_rest(
+    message: String,
+    stiff: Option<&StiffRest>,
+    energy: &str,
+    names: Option<&FileNumbering>,
+) -> String {
+    match stiff {
+        Some(s) => format!(
+            "{message}; the rest state may be why: {}{}",
+            s.describe(names),
+            tan_note(energy)
+        ),
+        None => message,
+    }
+}
+
+/// Why a scene's `energy` makes a folded rest hinge stiff, where the reason is known.
+fn tan_note(energy: &str) -> &'static str {
+    if energy == "tan-bending" {
+        ", where tan bending stiffens as 1/cos⁴(θ̄/2)"
+    } else {
+        ""
+    }
+}
+
 /// A solver error's message; with `names` (a mesh file's numbering), an evaluation error names its vertices
 /// and faces as the file counts them ([`hinge_core::EvalError::describe`]).
 pub fn solver_message(e: &SolverError, names: Option<&FileNumbering>) -> String {
@@ -806,7 +924,9 @@ pub fn simulate_observed(
         solver,
         params,
         obstacles,
+        stiff_rest,
     } = build(scene, rest, true)?;
+    warn_stiff_rest(stiff_rest.as_ref(), &scene.bending.energy, names);
     let groups = scene.pin_groups(rest)?;
     let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
     fixed.extend(rest.unreferenced_vertices());
@@ -972,7 +1092,7 @@ pub fn simulate_observed(
                 break;
             }
             Err(e) => {
-                return Err(match stepper {
+                let message = match stepper {
                     Stepper::Implicit(_) => format!(
                         "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed)",
                         frame + 1,
@@ -984,7 +1104,13 @@ pub fn simulate_observed(
                         frame + 1,
                         solver_message(&e, names)
                     ),
-                });
+                };
+                return Err(with_stiff_rest(
+                    message,
+                    stiff_rest.as_ref(),
+                    &scene.bending.energy,
+                    names,
+                ));
             }
         };
         let stats = &fs.newton;

@@ -1958,7 +1958,8 @@ fn mesh_formats_through_the_command_line() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     assert!(
-        err.contains("2 faces with more than three corners fan-triangulated"),
+        err.starts_with("hinge: warning: ")
+            && err.contains("2 faces with more than three corners fan-triangulated"),
         "{err}"
     );
     assert!(String::from_utf8_lossy(&o.stdout).contains("triangles 4"));
@@ -3298,9 +3299,10 @@ fn vertices_in_no_face_are_held_and_change_nothing_else() {
     let (holes_err, holes, holes_x) = run("holes");
     assert!(!plain_err.contains("in no face"), "{plain_err}");
     assert!(
-        holes_err.contains(
-            "2 vertices are in no face (the first: vertex 18 (line 18)); held where they are"
-        ),
+        holes_err.starts_with("hinge: warning: ")
+            && holes_err.contains(
+                "2 vertices are in no face (the first: vertex 18 (line 18)); held where they are"
+            ),
         "{holes_err}"
     );
     // The cloth reached the sphere in these frames (contact counts), with the same Newton path.
@@ -3372,7 +3374,8 @@ fn vertices_split_along_a_seam_are_named_on_reading() {
     assert!(o.status.success(), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(
-        err.contains("2 vertices lie exactly on another vertex (the first: vertex 4 (line 4) on vertex 2 (line 2))"),
+        err.starts_with("hinge: warning: ")
+            && err.contains("2 vertices lie exactly on another vertex (the first: vertex 4 (line 4) on vertex 2 (line 2))"),
         "{err}"
     );
     let stdout = String::from_utf8_lossy(&o.stdout);
@@ -3390,6 +3393,111 @@ fn vertices_split_along_a_seam_are_named_on_reading() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(String::from_utf8_lossy(&o.stdout).contains("hinges 1"));
+}
+
+/// A crease folded almost flat at rest makes tan bending a million times stiffer there or more: `hinge run`
+/// says so at set-up in one warning line naming the hinge as the file counts its vertices, and a run that
+/// then fails names it as the likely cause in its one error line (before, the error guessed at "a collapsed
+/// triangle"). A mildly folded mesh and discrete shells (no stiffening) get no warning. Also: `--threads`
+/// beyond the CPUs warns once with one prefix in `hinge fit` (it printed `hinge: hinge: warning:`).
+#[test]
+fn a_rest_crease_folded_flat_is_named_at_set_up_and_in_the_failure() {
+    let dir = tmp("stiff-rest");
+    // The hinge's edge is the file's vertices 2 and 5 (a comment line first: lines are not vertices); the
+    // wing vertex 3 is turned by `fold` from flat about that edge.
+    let write = |name: &str, fold: f64, energy: &str| {
+        let (s, c) = fold.sin_cos();
+        let obj = format!(
+            "# folded pair\nv 0.4 -0.9 0.5\nv 1 0 0.5\nv {} {} {}\nv 2 0 0.5\nv 0 0 0.5\n\
+             f 1 5 2\nf 3 2 5\nf 4 2 3\n",
+            0.5,
+            0.8 * c,
+            0.5 + 0.8 * s
+        );
+        std::fs::write(dir.join(format!("{name}.obj")), obj).unwrap();
+        let scene = format!(
+            "name = \"{name}\"\nframes = 2\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\n\
+             obj = \"{name}.obj\"\n[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\n\
+             density = 0.1\n[bending]\nenergy = \"{energy}\"\n"
+        );
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, scene).unwrap();
+        path
+    };
+    let run = |path: &Path, extra: &[&str]| {
+        let out = dir.join("out");
+        let mut args = vec![
+            "run",
+            path.to_str().unwrap(),
+            "--no-frames",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = hinge(&args);
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    // Folded to 1e-4 rad of flat: 1/cos⁴ ≈ 1.6e17; the run itself goes through.
+    let nearly = write("nearly", std::f64::consts::PI - 1e-4, "tan-bending");
+    let (ok, err) = run(&nearly, &[]);
+    assert!(ok, "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("hinge: warning: 1 rest hinge is at least 1e6 times stiffer than flat")
+            && err.contains("the hinge on the edge between vertices 2 and 5 at θ̄ = ")
+            && err.contains("3.1415 rad, where tan bending stiffens as 1/cos⁴(θ̄/2)"),
+        "{err}"
+    );
+    // Exactly flat: no step can move that hinge; the error line names it (and so does the static solve's).
+    let flat = write("flat", std::f64::consts::PI, "tan-bending");
+    for extra in [&[][..], &["--static"][..]] {
+        let (ok, err) = run(&flat, extra);
+        assert!(!ok, "{err}");
+        let lines: Vec<&str> = err.trim_end().lines().collect();
+        assert_eq!(lines.len(), 2, "{err}");
+        assert!(lines[0].starts_with("hinge: warning: "), "{err}");
+        assert!(
+            lines[1].starts_with("hinge: ")
+                && !lines[1].starts_with("hinge: warning")
+                && lines[1]
+                    .contains("; the rest state may be why: 1 rest hinge is at least 1e6 times")
+                && lines[1].contains("between vertices 2 and 5"),
+            "{err}"
+        );
+    }
+    // A crease folded to 2.5 rad (1/cos⁴ ≈ 100), and discrete shells folded flat: no warning.
+    for path in [
+        write("mild", 2.5, "tan-bending"),
+        write("shells", std::f64::consts::PI, "discrete-shells"),
+    ] {
+        let (ok, err) = run(&path, &[]);
+        assert!(ok && err.is_empty(), "{}: {err}", path.display());
+    }
+    // `hinge fit` with more threads than CPUs: one warning line, one prefix.
+    let o = hinge(&[
+        "fit",
+        nearly.to_str().unwrap(),
+        "--target",
+        dir.join("nearly.obj").to_str().unwrap(),
+        "--fit",
+        "material.young",
+        "--threads",
+        "100000",
+        "--max-iterations",
+        "1",
+        "--out",
+        dir.join("fit").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.lines()
+            .any(|l| l.starts_with("hinge: warning: --threads 100000")),
+        "{err}"
+    );
+    assert!(!err.contains("hinge: hinge:"), "{err}");
 }
 
 /// A stiffness whose Hessian overflows f64 (Young's modulus 1e308 Pa) ends the run with one line naming the

@@ -581,3 +581,91 @@ fn locality_order_and_identity_order_give_the_same_matrix() {
         SymmetricPattern::with_vertex_order(mesh.n_vertices(), model.couplings(), &[0]).is_err()
     );
 }
+
+/// Two triangles on the hinge x1 = origin, x2 = (1, 0, 0), the wing x3 turned about the hinge by `fold`
+/// from the flat state (|θ̄| = `fold`), numbered at random and with the corners of each face rotated by
+/// `rotation`.
+fn folded_pair(fold: f64, seed: u64, rotation: usize) -> TriMesh {
+    let mut x = hinge_tests::one_hinge_positions();
+    let (s, c) = fold.sin_cos();
+    x[3] = Vector3::new(0.6, -0.9 * c, -0.9 * s);
+    let faces: Vec<[usize; 3]> = [[0, 1, 2], [3, 2, 1]]
+        .iter()
+        .map(|f| {
+            [
+                f[rotation % 3],
+                f[(rotation + 1) % 3],
+                f[(rotation + 2) % 3],
+            ]
+        })
+        .collect();
+    let mesh = TriMesh::new(x, faces).unwrap();
+    renumber(&mesh, &random_permutation(4, seed)).unwrap()
+}
+
+/// `BendingModel::rest_stiffening` (ψ″(θ̄)/ψ″(0), what `hinge run` warns about for a crease folded almost
+/// flat) against the tan energy's closed form 1/cos⁴(θ̄/2) of the fold the mesh was built with, against
+/// num-dual's second derivative of ψ, and against central differences of ψ′, on folded pairs numbered at
+/// random under every corner rotation; discrete shells' is 1 everywhere, and a closed icosphere's is close
+/// to 1.
+#[test]
+fn rest_stiffening_of_folded_hinges_matches_its_closed_form_and_autodiff() {
+    use num_dual::second_derivative;
+    let k = 0.7;
+    let pi = std::f64::consts::PI;
+    for (i, &fold) in [0.0, 0.4, 1.3, 2.5, 3.0, 3.09, pi - 1.6e-3, pi - 1e-4]
+        .iter()
+        .enumerate()
+    {
+        for rotation in 0..3 {
+            let mesh = folded_pair(fold, 17 + i as u64, rotation);
+            let tan = BendingModel::new(&mesh, TanBending { k }).unwrap();
+            let ratio = tan.rest_stiffening()[0].unwrap();
+            let closed = (0.5 * fold).cos().powi(-4);
+            assert!(
+                (ratio - closed).abs() <= 1e-9 * closed,
+                "fold {fold}: {ratio} against 1/cos⁴ = {closed}"
+            );
+            let q = tan.hinge_quantities(0).unwrap();
+            assert!((q.theta_bar.abs() - fold).abs() <= 1e-12, "{}", q.theta_bar);
+            let p = tan.psi().params(&q);
+            let d2 = |theta: f64| second_derivative(|t| tan.psi().psi_dual(&p, t), theta).2;
+            let dual = d2(q.theta_bar) / d2(0.0);
+            assert!(
+                (ratio - dual).abs() <= 1e-12 * dual,
+                "fold {fold}: {ratio} against num-dual {dual}"
+            );
+            if fold <= 3.0 {
+                let h = 1e-5;
+                let d1 = |theta: f64| tan.psi().eval(&p, theta)[1];
+                let fd = (d1(q.theta_bar + h) - d1(q.theta_bar - h)) / (d1(h) - d1(-h));
+                assert!(
+                    (ratio - fd).abs() <= 1e-6 * ratio,
+                    "fold {fold}: {ratio} against differences {fd}"
+                );
+            }
+            let shells = BendingModel::new(&mesh, DiscreteShells { k }).unwrap();
+            assert_eq!(shells.rest_stiffening(), vec![Some(1.0)]);
+        }
+    }
+    // Exactly folded (both wings in one plane, on one side): tan(θ̄/2) is about 1.6e16, not infinite.
+    let mut x = hinge_tests::one_hinge_positions();
+    x[3] = Vector3::new(0.6, 0.5, 0.0);
+    let flat = TriMesh::new(x, vec![[0, 1, 2], [3, 2, 1]]).unwrap();
+    let tan = BendingModel::new(&flat, TanBending { k }).unwrap();
+    let ratio = tan.rest_stiffening()[0].unwrap();
+    assert!(ratio > 1e60, "{ratio}");
+    // A closed icosphere: every hinge close to flat (|θ̄| ≤ 0.2 rad at 2 subdivisions: 1/cos⁴ ≤ 1.03).
+    let sphere = icosphere(2, 1.0).unwrap();
+    let tan = BendingModel::new(&sphere, TanBending { k }).unwrap();
+    for (h, r) in tan.rest_stiffening().iter().enumerate() {
+        let r = r.unwrap();
+        let expected = (0.5 * tan.hinge_quantities(h).unwrap().theta_bar)
+            .cos()
+            .powi(-4);
+        assert!(
+            r > 1.0 && r < 1.03 && (r - expected).abs() <= 1e-14,
+            "hinge {h}: {r}"
+        );
+    }
+}
