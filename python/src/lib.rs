@@ -549,6 +549,16 @@ impl Model {
         let t = theta_bar.as_array().to_vec();
         with_model!(&mut self.inner, m => m.set_rest_angles(&t)).map_err(value_error)
     }
+
+    /// ψ″(θ̄) / ψ″(0) of every hinge (hinge order; NaN where ψ″(0) is not positive and finite, ∞ where
+    /// ψ″(θ̄) is not finite).
+    fn rest_stiffening<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        let r = with_model!(&self.inner, m => m.rest_stiffening());
+        r.into_iter()
+            .map(|r| r.unwrap_or(f64::NAN))
+            .collect::<Vec<_>>()
+            .into_pyarray(py)
+    }
 }
 
 impl Model {

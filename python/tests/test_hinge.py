@@ -1209,3 +1209,21 @@ def test_ctrl_c_ends_long_calls_with_keyboard_interrupt_and_the_state_kept():
     young = s.parameter("membrane.young")
     assert interrupted(lambda: hinge.solve_static(s, V), 0.5) < 30
     assert np.array_equal(s.parameter("membrane.young"), young)
+
+
+def test_rest_stiffening_of_a_folded_crease():
+    # Two triangles on the hinge (0,0,0)-(1,0,0), the wing vertex 3 turned by `fold` from flat.
+    for fold in (0.0, 1.0, 2.5, 3.09, np.pi - 1e-4):
+        V = np.array([[0.45, 0.8, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0],
+                      [0.6, -0.9 * np.cos(fold), -0.9 * np.sin(fold)]])
+        F = np.array([[0, 1, 2], [3, 2, 1]])
+        closed = np.cos(fold / 2) ** -4
+        tan = hinge.BendingModel(V, F, energy="tan-bending", k=0.3).rest_stiffening()
+        assert tan.shape == (1,) and abs(tan[0] - closed) <= 1e-9 * closed, (fold, tan, closed)
+        psi = hinge.BendingModel(
+            V, F, psi="k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)", k=0.3
+        ).rest_stiffening()
+        assert abs(psi[0] - closed) <= 1e-9 * closed
+        assert hinge.BendingModel(V, F, energy="discrete-shells", k=0.3).rest_stiffening()[0] == 1.0
+        # psi'' = 0 everywhere: no flat reference.
+        assert np.isnan(hinge.BendingModel(V, F, psi="k * a * theta", k=0.3).rest_stiffening()[0])
