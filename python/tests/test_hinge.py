@@ -1227,3 +1227,72 @@ def test_rest_stiffening_of_a_folded_crease():
         assert hinge.BendingModel(V, F, energy="discrete-shells", k=0.3).rest_stiffening()[0] == 1.0
         # psi'' = 0 everywhere: no flat reference.
         assert np.isnan(hinge.BendingModel(V, F, psi="k * a * theta", k=0.3).rest_stiffening()[0])
+
+
+def _system():
+    V, F = sheet(3, 3, 40)
+    s = hinge.System(V, F).add_bending(energy="tan-bending", k=1e-3).add_gravity(density=0.1)
+    return V, s.pin([0, 1])
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        # Wrong types and out-of-range whole numbers: ValueError naming the argument, not TypeError or
+        # OverflowError from a conversion (and not a silent bool(): barrier="no" was True).
+        (lambda V, s: s.add_sphere((0, 0, -1), None, 1.0), "radius must be a number"),
+        (lambda V, s: s.add_sphere((0, 0, -1), 0.5, [1.0, 2.0]), "stiffness must be a number"),
+        (lambda V, s: s.add_sphere((0, 0), 0.5, 1.0), "center must have 3 components"),
+        (lambda V, s: s.add_sphere(None, 0.5, 1.0), "center must have 3 components"),
+        (lambda V, s: s.add_sphere((0, 0, -1), 0.5, 1.0, barrier="no"), "barrier must be True or False"),
+        (lambda V, s: s.add_plane((0, 0, 0), (0, 0, {}), 1.0), r"normal\[2\] must be a number"),
+        (lambda V, s: s.add_membrane(True, 0.3, 1e-3), "young must be a number"),
+        (lambda V, s: s.add_membrane(1e5, 0.3, 1e-3, kind=1), "kind must be a string"),
+        (lambda V, s: s.add_springs(1.0, compressive="yes"), "compressive must be True or False"),
+        (lambda V, s: s.add_gravity(0.1, g=(0, 0)), "g must have 3 components"),
+        (lambda V, s: s.add_drag(np.zeros(3), 1.0), "density must be a number"),
+        (lambda V, s: s.evaluate(V, hessian="no"), "hessian must be True or False"),
+        (lambda V, s: s.set_parameter("gravity.g", {}), "values must be a number"),
+        (lambda V, s: s.parameter(3), "name must be a string"),
+        (lambda V, s: hinge.solve_static(s, V, max_iterations=-1), "max_iterations must be at least 0"),
+        (lambda V, s: hinge.solve_static(s, V, max_iterations=float("inf")), "max_iterations must be a whole"),
+        (lambda V, s: hinge.solve_static(s, V, max_iterations=2**70), "below 2"),
+        (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=None), "gradient_tolerance must be a number"),
+        (lambda V, s: hinge.ImplicitEuler(s, V, dt=[0.01], density=0.1), "dt must be a number"),
+        (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=-3), "at least 0"),
+        (lambda V, s: hinge.adjoint_gradient(s, V, np.zeros_like(V), None), "parameters must be a string"),
+        (lambda V, s: hinge.fit(s, V, V, [1]), r"parameters\[0\] must be a string"),
+        (lambda V, s: hinge.fit_scene("beam1", {}, "material.young"), "target must be"),
+        (lambda V, s: hinge.fit_scene("beam1", "x.obj", 7), "keys must be a string"),
+        (lambda V, s: hinge.run_scene("beam1", frames=-5), "frames must be at least 0"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]]), threads=-2**63), "threads must be at least 1"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]]), method=3), "method must be a string"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]]), energy=("tan-bending",)), "energy must be"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).set_step(V, None), "dt must be a number"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).set_rest_angles({}), "theta_bar must be"),
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).evaluate_into(V, None), "g_out must be"),
+    ],
+)
+def test_arguments_of_the_wrong_kind_raise_value_error(call, message):
+    V, s = _system()
+    with pytest.raises(ValueError, match=message):
+        call(V, s)
+
+
+def test_numbers_of_any_numeric_kind_are_accepted():
+    V, s = _system()
+    s.add_sphere(np.array([0.0, 0.0, -1.0]), np.float64(0.5), np.array(2.0), margin=0)
+    s.add_plane([0, 0, -2], (0, 0, 1), 1)
+    V2, plain = _system()
+    plain.add_sphere((0.0, 0.0, -1.0), 0.5, 2.0, margin=0.0)
+    plain.add_plane((0.0, 0.0, -2.0), (0.0, 0.0, 1.0), 1.0)
+    X = V + 0.01 * np.sin(7 * V)
+    E, g, H = s.evaluate(X)
+    E2, g2, H2 = plain.evaluate(X)
+    assert E == E2 and np.array_equal(g, g2) and (H != H2).nnz == 0
+    # Three iterations cannot reach 1e-30: the same failure, at the same gradient norm, either way.
+    with pytest.raises(ValueError, match="no convergence in 3 iterations") as a:
+        hinge.solve_static(s, X, max_iterations=np.int64(3), gradient_tolerance=np.float32(1e-30))
+    with pytest.raises(ValueError) as b:
+        hinge.solve_static(plain, X, max_iterations=3.0, gradient_tolerance=1e-30)
+    assert str(a.value) == str(b.value)

@@ -58,6 +58,61 @@ def _param(name, value):
     return _np.ascontiguousarray(a, dtype=_np.float64)
 
 
+def _number(name, value):
+    """A real number (int, float, numpy scalar or 0-d array; not a bool) as float, else ValueError; whether
+    it is finite and in range is the Rust side's to say, naming the parameter."""
+    if isinstance(value, _np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (bool, _np.bool_)) or not isinstance(value, (int, float, _np.integer, _np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(f"{name} is too large for a float: {value!r}") from None
+
+
+def _count(name, value, minimum=0):
+    """A whole number in [minimum, 2⁶³) (int, numpy integer, or a float with an integral value) as int, else
+    ValueError."""
+    if isinstance(value, _np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (float, _np.floating)) and _np.isfinite(value) and float(value).is_integer():
+        value = int(value)
+    if isinstance(value, (bool, _np.bool_)) or not isinstance(value, (int, _np.integer)):
+        raise ValueError(f"{name} must be a whole number, got {value!r}")
+    if not minimum <= int(value) < 2**63:
+        raise ValueError(f"{name} must be at least {minimum} (and below 2**63), got {value!r}")
+    return int(value)
+
+
+def _vector3(name, value):
+    """Three real numbers as a list of floats, else ValueError."""
+    try:
+        v = list(value)
+    except TypeError:
+        raise ValueError(f"{name} must have 3 components (numbers), got {value!r}") from None
+    if len(v) != 3:
+        raise ValueError(f"{name} must have 3 components, got {len(v)}")
+    return [_number(f"{name}[{i}]", c) for i, c in enumerate(v)]
+
+
+def _names(name, value):
+    """One name or an iterable of names as a list of strings, else ValueError."""
+    if isinstance(value, str):
+        return [value]
+    try:
+        names = list(value)
+    except TypeError:
+        raise ValueError(f"{name} must be a string or a list of strings, got {value!r}") from None
+    return [_string(f"{name}[{i}]", v) for i, v in enumerate(names)]
+
+
+def _string(name, value):
+    if not isinstance(value, str):
+        raise ValueError(f"{name} must be a string, got {value!r}")
+    return value
+
+
 def hinges(V, F):
     """The (h, 4) int64 array of hinge stencils (x0, x1, x2, x3) of a mesh, in hinge order."""
     return _hinge.hinges(_vertices(V), _faces(F))
@@ -121,12 +176,13 @@ class BendingModel:
                  **params):
         if energy is None and psi is None:
             energy = "discrete-shells"
-        if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool)):
-            raise ValueError(f"threads must be an integer, got {threads!r}")
+        if threads is not None:
+            threads = _count("threads", threads, minimum=1)
         p = {k: _param(k, v) for k, v in params.items()}
-        if not isinstance(hessian, str):
-            raise ValueError(f"hessian must be a string, got {hessian!r}")
-        self._m = _hinge.BendingModel(_vertices(V), _faces(F), energy, psi, method, threads, p, hessian)
+        energy = None if energy is None else _string("energy", energy)
+        psi = None if psi is None else _string("psi", psi)
+        self._m = _hinge.BendingModel(_vertices(V), _faces(F), energy, psi, _string("method", method), threads,
+                                      p, _string("hessian", hessian))
         indptr, indices = self._m.pattern()
         self._indptr, self._indices = indptr, indices
         self.n_vertices = self._m.n_vertices
@@ -166,7 +222,7 @@ class BendingModel:
 
     def evaluate(self, X, hessian=True):
         """``(E, g, H)`` at positions ``X`` (n, 3); ``(E, g)`` with ``hessian=False``."""
-        E, g, data = self._m.evaluate_raw(self._x(X), True, bool(hessian))
+        E, g, data = self._m.evaluate_raw(self._x(X), True, _flag("hessian", hessian))
         if not hessian:
             return E, g
         n = 3 * self.n_vertices
@@ -181,6 +237,8 @@ class BendingModel:
     def evaluate_into(self, X, g_out, data_out=None):
         """Evaluates into ``g_out`` (float64, 3n) and ``data_out`` (float64, ``nnz``, in ``pattern()``
         order; None skips the Hessian). Returns E."""
+        if g_out is None:
+            raise ValueError("g_out must be a writable contiguous 1-D float64 array, got None")
         for name, a in (("g_out", g_out), ("data_out", data_out)):
             if a is not None and not (isinstance(a, _np.ndarray) and a.dtype == _np.float64
                                       and a.ndim == 1 and a.flags.c_contiguous and a.flags.writeable):
@@ -189,7 +247,7 @@ class BendingModel:
 
     def set_step(self, X_prev, dt):
         """Starts a time step (for energies that read ``theta_prev`` and ``dt``)."""
-        self._m.set_step(self._x(X_prev), float(dt))
+        self._m.set_step(self._x(X_prev), _number("dt", dt))
 
     def set_parameter(self, name, value):
         """Changes a parameter after set-up (re-hoisted)."""
@@ -203,7 +261,10 @@ class BendingModel:
 
     def set_rest_angles(self, theta_bar):
         """Sets every hinge's rest angle (hinge order)."""
-        a = _np.ascontiguousarray(_np.asarray(theta_bar), dtype=_np.float64)
+        try:
+            a = _np.ascontiguousarray(_np.asarray(theta_bar), dtype=_np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("theta_bar must be a 1-D array of numbers with one value per hinge") from None
         if a.ndim != 1:
             raise ValueError("theta_bar must be a 1-D array with one value per hinge")
         self._m.set_rest_angles(a)
@@ -268,30 +329,30 @@ class System:
         as in ``BendingModel``: ``"refactored"`` (the default), ``"per_hinge"`` or ``"autodiff"``."""
         if energy is None and psi is None:
             energy = "discrete-shells"
-        if not isinstance(hessian, str):
-            raise ValueError(f"hessian must be a string, got {hessian!r}")
-        if not isinstance(method, str):
-            raise ValueError(f"method must be a string, got {method!r}")
-        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, hessian, method)
+        energy = None if energy is None else _string("energy", energy)
+        psi = None if psi is None else _string("psi", psi)
+        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, _string("hessian", hessian),
+                            _string("method", method))
         return self
 
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
         """A membrane: ``kind`` "stvk" (St. Venant-Kirchhoff), "corotational" (k/2 A |F - R|^2 with
         k = young * thickness / (1 + poisson), exact Hessian) or "neo-hookean" (compressible neo-Hookean
         with St. Venant-Kirchhoff's Lame constants, infinite energy at zero area, exact Hessian)."""
-        self._s.add_membrane(float(young), float(poisson), float(thickness), str(kind))
+        self._s.add_membrane(_number("young", young), _number("poisson", poisson),
+                             _number("thickness", thickness), _string("kind", kind))
         return self
 
     def add_springs(self, k, compressive=True):
-        self._s.add_springs(float(k), bool(compressive))
+        self._s.add_springs(_number("k", k), _flag("compressive", compressive))
         return self
 
     def add_gravity(self, density, g=(0.0, 0.0, -9.81)):
-        self._s.add_gravity(float(density), [float(c) for c in g])
+        self._s.add_gravity(_number("density", density), _vector3("g", g))
         return self
 
     def add_drag(self, density, rate):
-        self._s.add_drag(float(density), float(rate))
+        self._s.add_drag(_number("density", density), _number("rate", rate))
         return self
 
     def add_sphere(self, center, radius, stiffness, margin=0.0, smoothing=0.0, barrier=False):
@@ -299,15 +360,15 @@ class System:
         ``smoothing`` of penetration into the margin (0: the quadratic penalty). ``barrier=True``: a
         logarithmic barrier reaching ``margin`` (> 0) from the obstacle instead, infinite on it; the solvers
         then never let a vertex reach the obstacle, and a vertex on or inside it raises ``ValueError``."""
-        self._s.add_sphere([float(c) for c in center], float(radius), float(stiffness), float(margin),
-                           float(smoothing), bool(barrier))
+        self._s.add_sphere(_vector3("center", center), _number("radius", radius), _number("stiffness", stiffness),
+                           _number("margin", margin), _number("smoothing", smoothing), _flag("barrier", barrier))
         return self
 
     def add_plane(self, point, normal, stiffness, margin=0.0, smoothing=0.0, barrier=False):
         """Penalty contact with a plane (vertices pushed to the side ``normal`` points to); ``smoothing`` and
         ``barrier`` as for ``add_sphere``."""
-        self._s.add_plane([float(c) for c in point], [float(c) for c in normal], float(stiffness),
-                          float(margin), float(smoothing), bool(barrier))
+        self._s.add_plane(_vector3("point", point), _vector3("normal", normal), _number("stiffness", stiffness),
+                          _number("margin", margin), _number("smoothing", smoothing), _flag("barrier", barrier))
         return self
 
     def pin(self, vertices):
@@ -342,14 +403,17 @@ class System:
 
     def parameter(self, name):
         """The values of parameter ``name`` as an array."""
-        return _np.asarray(self._s.parameter(str(name)))
+        return _np.asarray(self._s.parameter(_string("name", name)))
 
     def set_parameter(self, name, values):
         """Sets parameter ``name`` (a number, or as many values as it has)."""
-        v = _np.atleast_1d(_np.asarray(values, dtype=_np.float64))
+        try:
+            v = _np.atleast_1d(_np.asarray(values, dtype=_np.float64))
+        except (TypeError, ValueError):
+            raise ValueError(f"parameter {name!r}: values must be a number or a 1-D array of numbers") from None
         if v.ndim != 1:
             raise ValueError(f"parameter {name!r}: values must be a number or a 1-D array")
-        self._s.set_parameter(str(name), [float(x) for x in v])
+        self._s.set_parameter(_string("name", name), [float(x) for x in v])
         return self
 
     def evaluate(self, X, hessian=True, definite=False):
@@ -357,7 +421,7 @@ class System:
         positive semi-definite Hessian Newton's ``project-on-demand`` uses instead of the exact one (per
         term: Gauss–Newton hinges, membrane stress clamped to its positive part in the geometric stiffness,
         compressive spring and obstacle-curvature terms dropped); energy and gradient stay exact."""
-        E, g, data = self._s.evaluate_raw(self._x(X), bool(hessian), bool(definite))
+        E, g, data = self._s.evaluate_raw(self._x(X), _flag("hessian", hessian), _flag("definite", definite))
         if not hessian:
             return E, g
         indptr, indices = self._s.pattern()
@@ -386,7 +450,8 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     mean edge length. ``remember_shift`` (the scene key ``solver.remember_shift``) starts each diagonal-shift
     ladder near the last shift that factored, in this solve or (for a stepper) an earlier step; ``False``
     makes every solve independent of the ones before it."""
-    return _hinge.solve_static(system._s, system._x(X0), int(max_iterations), float(gradient_tolerance),
+    return _hinge.solve_static(system._s, system._x(X0), _count("max_iterations", max_iterations),
+                               _number("gradient_tolerance", gradient_tolerance),
                                _globalization(globalization), _flag("extrapolate", extrapolate),
                                _flag("membrane_continuation", membrane_continuation),
                                _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
@@ -417,9 +482,7 @@ def adjoint_gradient(system, X, dloss_dx, parameters):
     respect to the positions is ``dloss_dx`` (shape (n, 3)): ``-lambda^T dg/dp`` with ``H lambda = dL/dx``, ``H``
     the exact Hessian at ``X``. Returns a dict name -> array, one entry per parameter value. Raises
     ``ValueError`` when ``X`` is not a strict minimum (indefinite Hessian) or a name is unknown."""
-    if isinstance(parameters, str):
-        parameters = [parameters]
-    return _hinge.adjoint_gradient(system._s, system._x(X), system._x(dloss_dx), [str(p) for p in parameters])
+    return _hinge.adjoint_gradient(system._s, system._x(X), system._x(dloss_dx), _names("parameters", parameters))
 
 
 def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9, membrane_continuation=True):
@@ -430,10 +493,8 @@ def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e
     set; the fit's solves start from it. Returns ``(X, info)``: the fitted equilibrium and a dict with
     ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``, ``newton_iterations`` (all
     of them, the first equilibrium's included), ``stop``. The system keeps the fitted values."""
-    if isinstance(parameters, str):
-        parameters = [parameters]
-    return _hinge.fit(system._s, system._x(X0), system._x(target), [str(p) for p in parameters],
-                      int(max_iterations), float(gradient_tolerance),
+    return _hinge.fit(system._s, system._x(X0), system._x(target), _names("parameters", parameters),
+                      _count("max_iterations", max_iterations), _number("gradient_tolerance", gradient_tolerance),
                       _flag("membrane_continuation", membrane_continuation))
 
 
@@ -442,11 +503,13 @@ def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
     ``"material.density"``, ``"bending.params.NAME"``, ``"bending.rest_angles"``) that make the scene's static
     equilibrium match ``target`` (a mesh file path, or an (n, 3) array). Returns ``(X, info)`` like ``fit``;
     keys that cannot be told apart from the target raise ``ValueError``."""
-    if isinstance(keys, str):
-        keys = [keys]
     if not isinstance(target, str):
-        target = _np.ascontiguousarray(_np.asarray(target, dtype=_np.float64))
-    return _hinge.fit_scene(str(scene), target, [str(k) for k in keys], int(max_iterations), float(smoothness))
+        try:
+            target = _np.ascontiguousarray(_np.asarray(target, dtype=_np.float64))
+        except (TypeError, ValueError):
+            raise ValueError("target must be a mesh file path or an (n, 3) array of numbers") from None
+    return _hinge.fit_scene(str(scene), target, _names("keys", keys), _count("max_iterations", max_iterations),
+                            _number("smoothness", smoothness))
 
 
 class ImplicitEuler:
@@ -461,8 +524,9 @@ class ImplicitEuler:
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
                  relative_step_tolerance=0.0, remember_shift=True):
         V0 = None if V0 is None else system._x(V0)
-        self._t = _hinge.ImplicitEuler(system._s, system._x(X0), float(dt), float(density), V0,
-                                       int(max_iterations), float(gradient_tolerance),
+        self._t = _hinge.ImplicitEuler(system._s, system._x(X0), _number("dt", dt), _number("density", density), V0,
+                                       _count("max_iterations", max_iterations),
+                                       _number("gradient_tolerance", gradient_tolerance),
                                        _globalization(globalization), _flag("extrapolate", extrapolate),
                                        _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
                                        _tolerance("relative_step_tolerance", relative_step_tolerance),
@@ -493,6 +557,8 @@ def run_scene(scene, frames=None, trace=False):
     iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α (the line search's step length), shift."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
+    if frames is not None:
+        frames = _count("frames", frames)
     if not isinstance(trace, bool):
         raise ValueError(f"trace must be True or False, got {trace!r}")
     return _hinge.run_scene(str(scene), frames, trace)
