@@ -94,6 +94,29 @@ fn quiet_stdout_failures() {
     }));
 }
 
+/// Clap's usage error `text` as one line: its first line without the "error: " prefix and, when that line
+/// announces a list ("the following required arguments were not provided:"), the list's indented lines
+/// joined onto it (the first line alone named no argument).
+fn usage_line(text: &str) -> String {
+    let mut lines = text.lines();
+    let mut line = lines
+        .next()
+        .unwrap_or("invalid arguments")
+        .trim_start_matches("error: ")
+        .to_string();
+    if line.ends_with(':') {
+        let items: Vec<&str> = lines
+            .take_while(|l| l.starts_with(char::is_whitespace) && !l.trim().is_empty())
+            .map(str::trim)
+            .collect();
+        if !items.is_empty() {
+            line.push(' ');
+            line.push_str(&items.join(", "));
+        }
+    }
+    line
+}
+
 fn main() -> ExitCode {
     quiet_stdout_failures();
     let cli = match Cli::try_parse() {
@@ -109,14 +132,8 @@ fn main() -> ExitCode {
                 let _ = e.print();
                 return ExitCode::SUCCESS;
             }
-            // Usage errors: one line (clap's first line, without its "error: " prefix), non-zero exit.
-            let text = e.to_string();
-            let first = text
-                .lines()
-                .next()
-                .unwrap_or("invalid arguments")
-                .trim_start_matches("error: ");
-            eprintln!("hinge: {first} (see `hinge --help`)");
+            // Usage errors: one line, non-zero exit.
+            eprintln!("hinge: {} (see `hinge --help`)", usage_line(&e.to_string()));
             return ExitCode::from(2);
         }
     };

@@ -355,6 +355,23 @@ fn bad_input_is_one_line_and_nonzero() {
         assert!(!o.status.success(), "{args:?}");
         assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
     }
+    // Missing required arguments are named on that line (it ended at "were not provided:").
+    for (args, named) in [
+        (
+            vec!["fit", "beam1"],
+            &["--target <TARGET>", "--fit <FIT>"][..],
+        ),
+        (vec!["eval", "--out", out], &["--rest <REST>"][..]),
+    ] {
+        let o = hinge(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains("were not provided: "), "{err}");
+        for n in named {
+            assert!(err.contains(n), "{args:?}: {err}");
+        }
+    }
     let o = hinge(&["eval", "--list-energies"]);
     assert!(o.status.success());
     assert!(
