@@ -550,6 +550,12 @@ impl Model {
         with_model!(&mut self.inner, m => m.set_rest_angles(&t)).map_err(value_error)
     }
 
+    /// The set-up warning of rest hinges at least [`hinge_cli::run::STIFF_REST`] times stiffer than flat
+    /// (vertices numbered from 0), if any.
+    fn stiff_rest(&self) -> Option<String> {
+        with_model!(&self.inner, m => hinge_cli::run::StiffRest::of(m)).map(|s| s.describe(None))
+    }
+
     /// ψ″(θ̄) / ψ″(0) of every hinge (hinge order; NaN where ψ″(0) is not positive and finite, ∞ where
     /// ψ″(θ̄) is not finite).
     fn rest_stiffening<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {

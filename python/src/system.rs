@@ -1,6 +1,7 @@
 //! `hinge.System`, `hinge.solve_static` and `hinge.ImplicitEuler`: energies composed on one mesh, and the
 //! Newton solvers of hinge-solver on them.
 
+use hinge_cli::run::StiffRest;
 use hinge_cli::scene::CustomPsi;
 use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, HessianMode, Method, Parallelism, Request};
@@ -318,7 +319,8 @@ impl PySystem {
 
     /// A hinge bending term: a built-in energy or a ψ string, with its parameters, assembling the Hessian
     /// `hessian` names (`exact`, `gauss-newton`, `projected`) by the per-hinge `method` (`refactored`,
-    /// `per_hinge`, `autodiff`).
+    /// `per_hinge`, `autodiff`). Returns the set-up warning of rest hinges at least
+    /// [`hinge_cli::run::STIFF_REST`] times stiffer than flat, if any.
     #[pyo3(signature = (energy=None, psi=None, params=None, hessian="exact", method="refactored"))]
     fn add_bending(
         &mut self,
@@ -327,17 +329,28 @@ impl PySystem {
         params: Option<&Bound<'_, PyDict>>,
         hessian: &str,
         method: &str,
-    ) -> PyResult<()> {
+    ) -> PyResult<Option<String>> {
         let mode = parse_hessian(hessian)?;
         let method = parse_method(method)?;
         let (name, text, values) = psi_spec(energy, psi, params)?;
+        let psi = CustomPsi::new(&text, values.clone()).map_err(value_error)?;
         self.add(Term::Bending {
             name,
             text,
             values,
             mode,
             method,
-        })
+        })?;
+        // The term is valid (`add` built it): its rest state cannot fail to bind again.
+        let stiff = match psi {
+            CustomPsi::Small(p) => BendingModel::new(&self.rest, p)
+                .map(|m| StiffRest::of(&m))
+                .map_err(value_error)?,
+            CustomPsi::Large(p) => BendingModel::new(&self.rest, p)
+                .map(|m| StiffRest::of(&m))
+                .map_err(value_error)?,
+        };
+        Ok(stiff.map(|s| s.describe(None)))
     }
 
     /// A membrane (Young's modulus, Poisson ratio, thickness): `kind` `stvk` (St. Venant–Kirchhoff),

@@ -1212,21 +1212,38 @@ def test_ctrl_c_ends_long_calls_with_keyboard_interrupt_and_the_state_kept():
 
 
 def test_rest_stiffening_of_a_folded_crease():
+    import warnings
+
     # Two triangles on the hinge (0,0,0)-(1,0,0), the wing vertex 3 turned by `fold` from flat.
     for fold in (0.0, 1.0, 2.5, 3.09, np.pi - 1e-4):
         V = np.array([[0.45, 0.8, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0],
                       [0.6, -0.9 * np.cos(fold), -0.9 * np.sin(fold)]])
         F = np.array([[0, 1, 2], [3, 2, 1]])
         closed = np.cos(fold / 2) ** -4
-        tan = hinge.BendingModel(V, F, energy="tan-bending", k=0.3).rest_stiffening()
-        assert tan.shape == (1,) and abs(tan[0] - closed) <= 1e-9 * closed, (fold, tan, closed)
-        psi = hinge.BendingModel(
-            V, F, psi="k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)", k=0.3
-        ).rest_stiffening()
-        assert abs(psi[0] - closed) <= 1e-9 * closed
-        assert hinge.BendingModel(V, F, energy="discrete-shells", k=0.3).rest_stiffening()[0] == 1.0
+        stiff = closed >= 1e6
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            tan = hinge.BendingModel(V, F, energy="tan-bending", k=0.3)
+            psi = hinge.BendingModel(
+                V, F, psi="k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)", k=0.3
+            )
+            s = hinge.System(V, F).add_bending(energy="tan-bending", k=0.3)
+            shells = hinge.BendingModel(V, F, energy="discrete-shells", k=0.3)
+            hinge.System(V, F).add_bending(energy="discrete-shells", k=0.3)
+            linear = hinge.BendingModel(V, F, psi="k * a * theta", k=0.3)
+        # A warning from each tan model and the System's tan term when the crease is stiff, else none.
+        assert len(caught) == (3 if stiff else 0), (fold, [str(w.message) for w in caught])
+        for w in caught:
+            assert w.category is hinge.MeshWarning
+            assert "1 rest hinge is at least 1e6 times stiffer than flat" in str(w.message)
+            assert "between vertices 1 and 2" in str(w.message), str(w.message)
+        t = tan.rest_stiffening()
+        assert t.shape == (1,) and abs(t[0] - closed) <= 1e-9 * closed, (fold, t, closed)
+        assert abs(psi.rest_stiffening()[0] - closed) <= 1e-9 * closed
+        assert shells.rest_stiffening()[0] == 1.0
         # psi'' = 0 everywhere: no flat reference.
-        assert np.isnan(hinge.BendingModel(V, F, psi="k * a * theta", k=0.3).rest_stiffening()[0])
+        assert np.isnan(linear.rest_stiffening()[0])
+        assert s.terms == ["tan-bending"]
 
 
 def _system():

@@ -187,6 +187,7 @@ class BendingModel:
         self._indptr, self._indices = indptr, indices
         self.n_vertices = self._m.n_vertices
         self.n_hinges = self._m.n_hinges
+        _warn_stiff_rest(self._m.stiff_rest())
 
     @property
     def hinges(self):
@@ -271,8 +272,15 @@ class BendingModel:
 
 
 class MeshWarning(UserWarning):
-    """A mesh hinge can use but that may not be what was meant: vertices in no triangle, or vertices split
-    along a seam."""
+    """A mesh hinge can use but that may not be what was meant: vertices in no triangle, vertices split
+    along a seam, or rest creases folded so far that the bending energy is a million times stiffer there than
+    flat (tan bending near θ̄ = ±π)."""
+
+
+def _warn_stiff_rest(note):
+    if note:
+        _warnings.warn(f"{note} (vertices from 0); Newton may need many iterations and substeps", MeshWarning,
+                       stacklevel=3)
 
 
 class System:
@@ -331,8 +339,8 @@ class System:
             energy = "discrete-shells"
         energy = None if energy is None else _string("energy", energy)
         psi = None if psi is None else _string("psi", psi)
-        self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()}, _string("hessian", hessian),
-                            _string("method", method))
+        _warn_stiff_rest(self._s.add_bending(energy, psi, {k: _param(k, v) for k, v in params.items()},
+                                             _string("hessian", hessian), _string("method", method)))
         return self
 
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
