@@ -863,6 +863,27 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     let mut rows = Vec::new();
     // Each size's grid and permuted grid are timed together (interleaved); the irregular sheet with the
     // largest size.
+    for (list, per_vertex, flag) in [
+        (
+            &args.sizes,
+            hinge_cli::limits::BENCH_BYTES_PER_VERTEX,
+            "--sizes",
+        ),
+        (
+            &args.solver_sizes,
+            hinge_cli::limits::RUN_BYTES_PER_VERTEX,
+            "--solver-sizes",
+        ),
+    ] {
+        for &n in list {
+            let side = n as u128 + 1;
+            hinge_cli::limits::memory(
+                side.saturating_mul(side),
+                per_vertex,
+                &format!("{flag} {n}"),
+            )?;
+        }
+    }
     let largest = args.sizes.iter().copied().max();
     for &n in &args.sizes {
         let rest = unit_grid(n).map_err(|e| e.to_string())?;

@@ -1,6 +1,6 @@
 //! Limits the command line enforces so that no argument can hang the machine or fill its disk: thread
 //! counts are clamped to the logical CPUs, frame counts are capped and checked against the free space of the
-//! output directory.
+//! output directory, generated meshes against the memory available.
 
 use std::path::Path;
 
@@ -92,16 +92,73 @@ pub fn disk_space(dir: &Path, bytes: u64, what: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Peak memory per vertex of `hinge run` and `hinge fit` on a generated mesh, for [`memory`]: measured
+/// (`/usr/bin/time -f %M`) 14 KiB on the drape at 401×401 (161 202 vertices, 2.25 GB) and 18 KiB on
+/// `shell-drop` at level 6 (40 962 vertices), with a margin.
+pub const RUN_BYTES_PER_VERTEX: u64 = 24 * 1024;
+
+/// The same for `hinge stats` (a mesh and its hinge angles): 730 bytes measured on the 2001×2001 grid,
+/// with a margin.
+pub const STATS_BYTES_PER_VERTEX: u64 = 1024;
+
+/// Peak memory per vertex of the largest `--sizes` grid of `hinge bench` (its rows hold several models and
+/// the irregular sheet at once), for [`memory`]: 5.05 GB measured for `hinge bench --sizes 400`
+/// (161 604 vertices, 31 KiB each).
+pub const BENCH_BYTES_PER_VERTEX: u64 = 32 * 1024;
+
+/// The memory available to a new process (Linux: `MemAvailable` in `/proc/meminfo`), if known.
+pub fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
+/// Checks that a generated mesh of `vertices` vertices fits in the memory available, at `per_vertex` bytes
+/// per vertex ([`RUN_BYTES_PER_VERTEX`], …): a size the machine cannot hold is a one-line error, not a
+/// process the system kills once it has used all memory. No check where the available memory is unknown.
+///
+/// # Errors
+/// A one-line message with the sizes, naming `what` (the argument that asked for the mesh).
+pub fn memory(vertices: u128, per_vertex: u64, what: &str) -> Result<(), String> {
+    let Some(available) = available_memory() else {
+        return Ok(());
+    };
+    let need = vertices as f64 * per_vertex as f64;
+    if need > available as f64 {
+        let count = if vertices < 1_000_000_000_000 {
+            vertices.to_string()
+        } else {
+            format!("{:.2e}", vertices as f64)
+        };
+        return Err(format!(
+            "{what}: a mesh of {count} vertices needs about {} of memory but only {} is available",
+            human_f64(need),
+            human(available)
+        ));
+    }
+    Ok(())
+}
+
 /// `bytes` with a binary unit.
 fn human(bytes: u64) -> String {
-    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
-    let mut v = bytes as f64;
+    human_f64(bytes as f64)
+}
+
+/// `bytes` (any size) with a binary unit; beyond EiB in EiB.
+fn human_f64(bytes: f64) -> String {
+    const UNITS: [&str; 7] = ["B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut v = bytes;
     let mut u = 0;
     while v >= 1024.0 && u + 1 < UNITS.len() {
         v /= 1024.0;
         u += 1;
     }
-    format!("{v:.1} {}", UNITS[u])
+    if v >= 1e4 {
+        format!("{v:.1e} {}", UNITS[u])
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
 }
 
 #[cfg(test)]

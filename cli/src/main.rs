@@ -230,7 +230,15 @@ fn stats(
     let (mesh, label) = match &rest {
         Some(p) => (hinge_cli::files::read(p)?, p.display().to_string()),
         None => (
-            grid::unit_grid(n).map_err(|e| format!("default grid: {e}"))?,
+            {
+                let side = n as u128 + 1;
+                hinge_cli::limits::memory(
+                    side.saturating_mul(side),
+                    hinge_cli::limits::STATS_BYTES_PER_VERTEX,
+                    &format!("--n {n}"),
+                )?;
+                grid::unit_grid(n).map_err(|e| format!("default grid: {e}"))?
+            },
             format!("default {n}×{n} unit grid"),
         ),
     };

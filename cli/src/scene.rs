@@ -1072,6 +1072,16 @@ impl Scene {
         }
         let o = Vector3::from(self.mesh.origin);
         if self.mesh.shape.is_some() {
+            let level = self.mesh.subdivisions.unwrap_or(0);
+            let quads = u32::try_from(level)
+                .ok()
+                .and_then(|s| 4u128.checked_pow(s))
+                .unwrap_or(u128::MAX / 64);
+            crate::limits::memory(
+                10 * quads + 2,
+                crate::limits::RUN_BYTES_PER_VERTEX,
+                &format!("mesh: icosphere level {level}"),
+            )?;
             let m = hinge_core::shapes::icosphere(
                 self.mesh.subdivisions.unwrap_or(0),
                 self.mesh.radius.unwrap_or(1.0),
@@ -1084,6 +1094,11 @@ impl Scene {
                 .map_err(|e| format!("mesh: {e}"));
         }
         let c = self.mesh.cells.unwrap_or([1, 1]);
+        crate::limits::memory(
+            (c[0] as u128 + 1).saturating_mul(c[1] as u128 + 1),
+            crate::limits::RUN_BYTES_PER_VERTEX,
+            &format!("mesh: a {}×{} grid", c[0], c[1]),
+        )?;
         let diagonal = match self.mesh.diagonal.as_str() {
             "forward" => Diagonal::Forward,
             "backward" => Diagonal::Backward,

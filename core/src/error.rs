@@ -99,6 +99,20 @@ pub enum MeshError {
         /// Its length.
         len: usize,
     },
+    /// A generated mesh (grid, icosphere, torus, sheet) too large to build: its vertex count exceeds the
+    /// engine's 32-bit range (the Hessian pattern numbers vertices and values in 32 bits), or its
+    /// vertices and triangles cannot be allocated.
+    #[error(
+        "a generated mesh of {vertices} vertices and {triangles} triangles is too large: {reason}"
+    )]
+    TooLarge {
+        /// Its vertex count (saturating at `u64::MAX`).
+        vertices: u64,
+        /// Its triangle count (saturating at `u64::MAX`).
+        triangles: u64,
+        /// Why.
+        reason: &'static str,
+    },
     /// A deformed state does not have as many vertices as the rest mesh.
     #[error("the rest mesh has {rest} vertices but the deformed state has {deformed}")]
     VertexCountMismatch {

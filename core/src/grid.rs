@@ -28,7 +28,7 @@ pub enum Diagonal {
 ///
 /// # Errors
 /// [`MeshError::Empty`] when `nx` or `ny` is zero, [`MeshError::ZeroAreaTriangle`] for a zero or non-finite
-/// size.
+/// size, [`MeshError::TooLarge`] for a grid too large to build ([`reserve_generated`]).
 pub fn grid(
     nx: usize,
     ny: usize,
@@ -42,7 +42,11 @@ pub fn grid(
             triangles: 0,
         });
     }
-    let mut positions = Vec::with_capacity((nx + 1) * (ny + 1));
+    // (2⁶⁴)² overflows u128: such counts saturate (and are refused).
+    let count = |a: u128, b: u128, k: u128| a.checked_mul(b).and_then(|p| p.checked_mul(k));
+    let nv = count(nx as u128 + 1, ny as u128 + 1, 1).unwrap_or(u128::MAX);
+    let nt = count(nx as u128, ny as u128, 2).unwrap_or(u128::MAX);
+    let (mut positions, mut triangles) = reserve_generated(nv, nt)?;
     for j in 0..=ny {
         for i in 0..=nx {
             positions.push(Vector3::new(
@@ -52,7 +56,6 @@ pub fn grid(
             ));
         }
     }
-    let mut triangles = Vec::with_capacity(2 * nx * ny);
     for j in 0..ny {
         for i in 0..nx {
             let a = j * (nx + 1) + i;
@@ -78,9 +81,49 @@ pub fn grid(
 /// [`Diagonal::Forward`].
 ///
 /// # Errors
-/// [`MeshError::Empty`] when `n` is zero.
+/// As [`grid`].
 pub fn unit_grid(n: usize) -> Result<TriMesh, MeshError> {
     grid(n, n, 1.0, 1.0, Diagonal::Forward)
+}
+
+/// A triangle's three vertex indices.
+type Triangle = [usize; 3];
+
+/// The most vertices a generated mesh may have: the Hessian pattern numbers vertices in 32 bits
+/// ([`crate::pattern::SymmetricPattern`]).
+pub const MAX_GENERATED_VERTICES: u128 = u32::MAX as u128;
+
+/// Empty vectors with room for a generated mesh of `vertices` vertices and `triangles` triangles, or
+/// [`MeshError::TooLarge`] when the vertex count exceeds [`MAX_GENERATED_VERTICES`] or the memory cannot be
+/// reserved (an absurd size is an error, not an aborted process).
+///
+/// # Errors
+/// [`MeshError::TooLarge`].
+pub fn reserve_generated(
+    vertices: u128,
+    triangles: u128,
+) -> Result<(Vec<Vector3<f64>>, Vec<Triangle>), MeshError> {
+    let too_large = |reason: &'static str| MeshError::TooLarge {
+        vertices: u64::try_from(vertices).unwrap_or(u64::MAX),
+        triangles: u64::try_from(triangles).unwrap_or(u64::MAX),
+        reason,
+    };
+    if vertices > MAX_GENERATED_VERTICES {
+        return Err(too_large(
+            "more vertices than the engine's 32-bit range (4 294 967 295)",
+        ));
+    }
+    let (nv, nt) = (
+        vertices as usize,
+        usize::try_from(triangles).unwrap_or(usize::MAX),
+    );
+    let mut positions: Vec<Vector3<f64>> = Vec::new();
+    let mut faces: Vec<Triangle> = Vec::new();
+    positions
+        .try_reserve_exact(nv)
+        .and_then(|()| faces.try_reserve_exact(nt))
+        .map_err(|_| too_large("its vertices and triangles cannot be allocated"))?;
+    Ok((positions, faces))
 }
 
 /// The smooth test deformation of the reference data and of `hinge bench`: `(x, y, 0) ↦ (x, y,

@@ -14,26 +14,33 @@ use crate::mesh::TriMesh;
 /// A subdivided icosahedron on a sphere of `radius`: `10·4^s + 2` vertices, closed, outward normals.
 ///
 /// # Errors
-/// Only if the construction produced an invalid mesh (it does not).
+/// [`MeshError::TooLarge`] for a level whose mesh is too large to build (beyond 15: more than 2³² vertices).
 pub fn icosphere(subdivisions: usize, radius: f64) -> Result<TriMesh, MeshError> {
+    // 10·4ˢ + 2 vertices and 20·4ˢ triangles (4⁶⁰ still fits in u128; beyond, the count saturates).
+    let quads = u32::try_from(subdivisions)
+        .ok()
+        .and_then(|s| 4u128.checked_pow(s))
+        .unwrap_or(u128::MAX / 64);
+    let (mut v, _) = crate::grid::reserve_generated(10 * quads + 2, 20 * quads)?;
     let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<Vector3<f64>> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|p| Vector3::new(p[0], p[1], p[2]).normalize())
-    .collect();
+    v.extend(
+        [
+            [-1.0, t, 0.0],
+            [1.0, t, 0.0],
+            [-1.0, -t, 0.0],
+            [1.0, -t, 0.0],
+            [0.0, -1.0, t],
+            [0.0, 1.0, t],
+            [0.0, -1.0, -t],
+            [0.0, 1.0, -t],
+            [t, 0.0, -1.0],
+            [t, 0.0, 1.0],
+            [-t, 0.0, -1.0],
+            [-t, 0.0, 1.0],
+        ]
+        .iter()
+        .map(|p| Vector3::new(p[0], p[1], p[2]).normalize()),
+    );
     let mut f: Vec<[usize; 3]> = vec![
         [0, 11, 5],
         [0, 5, 1],
@@ -79,16 +86,19 @@ pub fn icosphere(subdivisions: usize, radius: f64) -> Result<TriMesh, MeshError>
 /// A torus with `nu × nv` vertices (major radius `big`, minor radius `small`), closed, outward normals.
 ///
 /// # Errors
-/// [`MeshError`] for `nu < 3` or `nv < 3` (a degenerate torus).
+/// [`MeshError`] for `nu < 3` or `nv < 3` (a degenerate torus); [`MeshError::TooLarge`] for one too large to
+/// build.
 pub fn torus(nu: usize, nv: usize, big: f64, small: f64) -> Result<TriMesh, MeshError> {
     if nu < 3 || nv < 3 {
         return Err(MeshError::Empty {
-            vertices: nu * nv,
+            vertices: nu.saturating_mul(nv),
             triangles: 0,
         });
     }
+    // Both below 2⁶⁴: the product fits in u128, twice it too.
+    let n = nu as u128 * nv as u128;
+    let (mut v, mut f) = crate::grid::reserve_generated(n, 2 * n)?;
     let tau = std::f64::consts::TAU;
-    let mut v = Vec::with_capacity(nu * nv);
     for i in 0..nu {
         let u = tau * i as f64 / nu as f64;
         for j in 0..nv {
@@ -98,7 +108,6 @@ pub fn torus(nu: usize, nv: usize, big: f64, small: f64) -> Result<TriMesh, Mesh
         }
     }
     let id = |i: usize, j: usize| (i % nu) * nv + (j % nv);
-    let mut f = Vec::with_capacity(2 * nu * nv);
     for i in 0..nu {
         for j in 0..nv {
             let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
@@ -164,17 +173,20 @@ pub fn renumber_positions(x: &[Vector3<f64>], perm: &[usize]) -> Vec<Vector3<f64
 /// and every face's corners rotated at random. Seeded, so the same call gives the same mesh.
 ///
 /// # Errors
-/// [`MeshError`] for `nx < 2` or `ny < 2`.
+/// [`MeshError`] for `nx < 2` or `ny < 2`; [`MeshError::TooLarge`] for one too large to build.
 pub fn irregular_sheet(nx: usize, ny: usize, seed: u64) -> Result<TriMesh, MeshError> {
     if nx < 2 || ny < 2 {
         return Err(MeshError::Empty {
-            vertices: nx * ny,
+            vertices: nx.saturating_mul(ny),
             triangles: 0,
         });
     }
+    let (mut v, mut f) = crate::grid::reserve_generated(
+        nx as u128 * ny as u128,
+        2 * (nx as u128 - 1) * (ny as u128 - 1),
+    )?;
     let mut rng = SplitMix64(seed);
     let (hx, hy) = (1.0 / (nx - 1) as f64, 1.0 / (ny - 1) as f64);
-    let mut v = Vec::with_capacity(nx * ny);
     for j in 0..ny {
         for i in 0..nx {
             let jx = if i == 0 || i == nx - 1 {
@@ -191,7 +203,6 @@ pub fn irregular_sheet(nx: usize, ny: usize, seed: u64) -> Result<TriMesh, MeshE
         }
     }
     let id = |i: usize, j: usize| j * nx + i;
-    let mut f = Vec::with_capacity(2 * (nx - 1) * (ny - 1));
     for j in 0..ny - 1 {
         for i in 0..nx - 1 {
             let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
@@ -217,8 +228,14 @@ pub fn irregular_sheet(nx: usize, ny: usize, seed: u64) -> Result<TriMesh, MeshE
 /// `[10⁻⁶, 10⁻²]`. Vertices are renumbered at random. Seeded.
 ///
 /// # Errors
-/// [`MeshError`] for `n < 2`.
+/// [`MeshError`] for `n < 2`; [`MeshError::TooLarge`] for one too large to build.
 pub fn sliver_sheet(n: usize, seed: u64) -> Result<TriMesh, MeshError> {
+    if n < 2 {
+        return Err(MeshError::Empty {
+            vertices: n.saturating_mul(n),
+            triangles: 0,
+        });
+    }
     let base = crate::grid::grid(n - 1, n - 1, 1.0, 1.0, crate::grid::Diagonal::Alternating)?;
     let mut rng = SplitMix64(seed);
     let mut v = base.positions().to_vec();

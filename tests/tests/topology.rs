@@ -277,3 +277,80 @@ proptest! {
         }
     }
 }
+
+/// Generated meshes of absurd sizes are a typed error naming the counts, not a panic ("capacity overflow",
+/// an overflowing `n - 1`) or an aborted process (an allocation of 240 GB): `hinge stats --n 100000` and
+/// `--n 3037000500` did both before. Sizes just below a limit still build, with the counts the formulas
+/// give.
+#[test]
+fn generated_meshes_too_large_to_build_are_typed_errors() {
+    use hinge_core::grid::{Diagonal, MAX_GENERATED_VERTICES, grid};
+    use hinge_core::shapes::{icosphere, irregular_sheet, sliver_sheet, torus};
+    let too_large = |r: Result<TriMesh, MeshError>, vertices: u128| match r {
+        Err(MeshError::TooLarge {
+            vertices: v,
+            reason,
+            ..
+        }) => {
+            assert_eq!(v, u64::try_from(vertices).unwrap_or(u64::MAX), "{reason}");
+            assert!(!reason.is_empty());
+        }
+        other => panic!("{vertices} vertices: {other:?}"),
+    };
+    let m = usize::MAX as u128;
+    too_large(
+        grid(100_000, 100_000, 1.0, 1.0, Diagonal::Forward),
+        100_001 * 100_001,
+    );
+    too_large(
+        grid(
+            3_037_000_500,
+            3_037_000_500,
+            1.0,
+            1.0,
+            Diagonal::Alternating,
+        ),
+        3_037_000_501 * 3_037_000_501,
+    );
+    // (2⁶⁴)² overflows u128: the count saturates, still an error.
+    too_large(
+        grid(usize::MAX, usize::MAX, 1.0, 1.0, Diagonal::Forward),
+        u128::MAX,
+    );
+    too_large(grid(usize::MAX - 1, 1, 1.0, 1.0, Diagonal::Forward), m * 2);
+    too_large(icosphere(16, 1.0), 10 * 4u128.pow(16) + 2);
+    assert!(matches!(
+        icosphere(usize::MAX, 1.0),
+        Err(MeshError::TooLarge { .. })
+    ));
+    too_large(torus(3, usize::MAX, 1.0, 0.3), 3 * m);
+    too_large(irregular_sheet(2, usize::MAX, 1), 2 * m);
+    assert!(matches!(
+        torus(2, usize::MAX, 1.0, 0.3),
+        Err(MeshError::Empty { .. })
+    ));
+    for n in [0, 1] {
+        assert!(
+            matches!(sliver_sheet(n, 1), Err(MeshError::Empty { .. })),
+            "{n}"
+        );
+    }
+    assert!(MAX_GENERATED_VERTICES == u32::MAX as u128);
+    // A grid just past the 32-bit vertex range is refused; small generated meshes have the counts the
+    // formulas give.
+    too_large(
+        grid(65_535, 65_536, 1.0, 1.0, Diagonal::Forward),
+        65_536 * 65_537,
+    );
+    let ico = icosphere(3, 1.0).unwrap();
+    assert_eq!(
+        (ico.n_vertices(), ico.n_triangles()),
+        (10 * 64 + 2, 20 * 64)
+    );
+    let t = torus(5, 4, 1.0, 0.3).unwrap();
+    assert_eq!((t.n_vertices(), t.n_triangles()), (20, 40));
+    let g = grid(3, 2, 1.0, 1.0, Diagonal::Alternating).unwrap();
+    assert_eq!((g.n_vertices(), g.n_triangles()), (12, 12));
+    let s = irregular_sheet(4, 3, 7).unwrap();
+    assert_eq!((s.n_vertices(), s.n_triangles()), (12, 12));
+}
