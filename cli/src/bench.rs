@@ -876,9 +876,8 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         ),
     ] {
         for &n in list {
-            let side = n as u128 + 1;
             hinge_cli::limits::memory(
-                side.saturating_mul(side),
+                hinge_core::grid::counts(n, n).0,
                 per_vertex,
                 &format!("{flag} {n}"),
             )?;

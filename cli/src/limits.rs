@@ -93,7 +93,7 @@ pub fn disk_space(dir: &Path, bytes: u64, what: &str) -> Result<(), String> {
 }
 
 /// Peak memory per vertex of `hinge run` and `hinge fit` on a generated mesh, for [`memory`]: measured
-/// (`/usr/bin/time -f %M`) 14 KiB on the drape at 401×401 (161 202 vertices, 2.25 GB) and 18 KiB on
+/// (`/usr/bin/time -f %M`) 14 KiB on the drape at 401×401 (160 801 vertices, 2.25 GB) and 18 KiB on
 /// `shell-drop` at level 6 (40 962 vertices), with a margin.
 pub const RUN_BYTES_PER_VERTEX: u64 = 24 * 1024;
 
@@ -103,7 +103,7 @@ pub const STATS_BYTES_PER_VERTEX: u64 = 1024;
 
 /// Peak memory per vertex of the largest `--sizes` grid of `hinge bench` (its rows hold several models and
 /// the irregular sheet at once), for [`memory`]: 5.05 GB measured for `hinge bench --sizes 400`
-/// (161 604 vertices, 31 KiB each).
+/// (160 801 vertices, 31 KiB each).
 pub const BENCH_BYTES_PER_VERTEX: u64 = 32 * 1024;
 
 /// The memory available to a new process (Linux: `MemAvailable` in `/proc/meminfo`), if known.

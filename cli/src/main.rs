@@ -231,9 +231,8 @@ fn stats(
         Some(p) => (hinge_cli::files::read(p)?, p.display().to_string()),
         None => (
             {
-                let side = n as u128 + 1;
                 hinge_cli::limits::memory(
-                    side.saturating_mul(side),
+                    grid::counts(n, n).0,
                     hinge_cli::limits::STATS_BYTES_PER_VERTEX,
                     &format!("--n {n}"),
                 )?;

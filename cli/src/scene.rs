@@ -1073,12 +1073,8 @@ impl Scene {
         let o = Vector3::from(self.mesh.origin);
         if self.mesh.shape.is_some() {
             let level = self.mesh.subdivisions.unwrap_or(0);
-            let quads = u32::try_from(level)
-                .ok()
-                .and_then(|s| 4u128.checked_pow(s))
-                .unwrap_or(u128::MAX / 64);
             crate::limits::memory(
-                10 * quads + 2,
+                hinge_core::shapes::icosphere_counts(level).0,
                 crate::limits::RUN_BYTES_PER_VERTEX,
                 &format!("mesh: icosphere level {level}"),
             )?;
@@ -1095,7 +1091,7 @@ impl Scene {
         }
         let c = self.mesh.cells.unwrap_or([1, 1]);
         crate::limits::memory(
-            (c[0] as u128 + 1).saturating_mul(c[1] as u128 + 1),
+            hinge_core::grid::counts(c[0], c[1]).0,
             crate::limits::RUN_BYTES_PER_VERTEX,
             &format!("mesh: a {}×{} grid", c[0], c[1]),
         )?;

@@ -42,10 +42,7 @@ pub fn grid(
             triangles: 0,
         });
     }
-    // (2⁶⁴)² overflows u128: such counts saturate (and are refused).
-    let count = |a: u128, b: u128, k: u128| a.checked_mul(b).and_then(|p| p.checked_mul(k));
-    let nv = count(nx as u128 + 1, ny as u128 + 1, 1).unwrap_or(u128::MAX);
-    let nt = count(nx as u128, ny as u128, 2).unwrap_or(u128::MAX);
+    let (nv, nt) = counts(nx, ny);
     let (mut positions, mut triangles) = reserve_generated(nv, nt)?;
     for j in 0..=ny {
         for i in 0..=nx {
@@ -75,6 +72,16 @@ pub fn grid(
         }
     }
     TriMesh::new(positions, triangles)
+}
+
+/// The vertex and triangle counts of [`grid`]`(nx, ny, …)`: `(nx + 1)(ny + 1)` and `2 nx ny`, saturating at
+/// `u128::MAX` (for `nx = ny = usize::MAX`), so a caller can check a size before building it.
+pub fn counts(nx: usize, ny: usize) -> (u128, u128) {
+    let (x, y) = (nx as u128, ny as u128);
+    (
+        (x + 1).saturating_mul(y + 1),
+        x.saturating_mul(y).saturating_mul(2),
+    )
 }
 
 /// The unit-square grid of the shared reference data and of `hinge bench`: `n × n` cells on `[0, 1]²`,

@@ -16,12 +16,8 @@ use crate::mesh::TriMesh;
 /// # Errors
 /// [`MeshError::TooLarge`] for a level whose mesh is too large to build (beyond 15: more than 2³² vertices).
 pub fn icosphere(subdivisions: usize, radius: f64) -> Result<TriMesh, MeshError> {
-    // 10·4ˢ + 2 vertices and 20·4ˢ triangles (4⁶⁰ still fits in u128; beyond, the count saturates).
-    let quads = u32::try_from(subdivisions)
-        .ok()
-        .and_then(|s| 4u128.checked_pow(s))
-        .unwrap_or(u128::MAX / 64);
-    let (mut v, _) = crate::grid::reserve_generated(10 * quads + 2, 20 * quads)?;
+    let (nv, nt) = icosphere_counts(subdivisions);
+    let (mut v, _) = crate::grid::reserve_generated(nv, nt)?;
     let t = (1.0 + 5f64.sqrt()) / 2.0;
     v.extend(
         [
@@ -81,6 +77,19 @@ pub fn icosphere(subdivisions: usize, radius: f64) -> Result<TriMesh, MeshError>
         f = next;
     }
     TriMesh::new(v.into_iter().map(|p| p * radius).collect(), f)
+}
+
+/// The vertex and triangle counts of [`icosphere`]`(subdivisions, …)`: `10·4ˢ + 2` and `20·4ˢ`, saturating
+/// beyond level 61, so a caller can check a level before building it.
+pub fn icosphere_counts(subdivisions: usize) -> (u128, u128) {
+    let quads = u32::try_from(subdivisions)
+        .ok()
+        .and_then(|s| 4u128.checked_pow(s))
+        .unwrap_or(u128::MAX);
+    (
+        quads.saturating_mul(10).saturating_add(2),
+        quads.saturating_mul(20),
+    )
 }
 
 /// A torus with `nu × nv` vertices (major radius `big`, minor radius `small`), closed, outward normals.

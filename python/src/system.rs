@@ -91,6 +91,10 @@ enum Term {
     },
 }
 
+/// A term, with the rest hinges a bending term makes at least a million times stiffer than flat
+/// ([`StiffRest`]; `None` for the other terms).
+type BuiltTerm = (Box<dyn Energy>, Option<StiffRest>);
+
 /// A bending term named `name` of ψ `psi` on `rest`, its Hessian in `mode`, evaluated by `method`.
 fn bending_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
@@ -98,26 +102,29 @@ fn bending_term<P: HingePsi + Send + 'static>(
     psi: P,
     mode: HessianMode,
     method: Method,
-) -> Result<Box<dyn Energy>, String> {
+) -> Result<BuiltTerm, String> {
     let mut m = BendingModel::new(rest, psi).map_err(|e| e.to_string())?;
     m.set_hessian_mode(mode).map_err(|e| e.to_string())?;
-    Ok(Box::new(HingeTerm::new(name, m, method)))
+    let stiff = StiffRest::of(&m);
+    Ok((Box::new(HingeTerm::new(name, m, method)), stiff))
 }
 
-fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
+fn build_term(rest: &TriMesh, t: &Term) -> Result<BuiltTerm, String> {
     let e = |e: hinge_core::EvalError| e.to_string();
     let n = rest.n_vertices();
-    Ok(match t {
+    let energy: Box<dyn Energy> = match t {
         Term::Bending {
             name,
             text,
             values,
             mode,
             method,
-        } => match CustomPsi::new(text, values.clone())? {
-            CustomPsi::Small(p) => bending_term(rest, name, p, *mode, *method)?,
-            CustomPsi::Large(p) => bending_term(rest, name, p, *mode, *method)?,
-        },
+        } => {
+            return match CustomPsi::new(text, values.clone())? {
+                CustomPsi::Small(p) => bending_term(rest, name, p, *mode, *method),
+                CustomPsi::Large(p) => bending_term(rest, name, p, *mode, *method),
+            };
+        }
         Term::Membrane {
             young,
             poisson,
@@ -188,7 +195,8 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<Box<dyn Energy>, String> {
             .and_then(|c| if *barrier { c.with_barrier() } else { Ok(c) })
             .map_err(e)?,
         ),
-    })
+    };
+    Ok((energy, None))
 }
 
 /// Energies composed on one rest mesh, with pinned vertices.
@@ -213,7 +221,7 @@ impl PySystem {
         let terms = self
             .terms
             .iter()
-            .map(|t| build_term(&self.rest, t))
+            .map(|t| build_term(&self.rest, t).map(|(energy, _)| energy))
             .collect::<Result<Vec<_>, _>>()?;
         let mut system = System::new(self.rest.n_vertices(), terms).map_err(|e| e.to_string())?;
         for (name, values) in &self.overrides {
@@ -249,12 +257,13 @@ impl PySystem {
         Ok(())
     }
 
-    fn add(&mut self, t: Term) -> PyResult<()> {
+    /// Adds a term; returns a bending term's stiff rest hinges ([`StiffRest`]), if any.
+    fn add(&mut self, t: Term) -> PyResult<Option<StiffRest>> {
         // Built once to check the parameters now (the error names the term), then kept.
-        build_term(&self.rest, &t).map_err(value_error)?;
+        let (_, stiff) = build_term(&self.rest, &t).map_err(value_error)?;
         self.terms.push(t);
         self.built = None;
-        Ok(())
+        Ok(stiff)
     }
 
     /// The solvers' pins: the user's, and the vertices of no triangle (no mass, no stiffness: held).
@@ -333,23 +342,13 @@ impl PySystem {
         let mode = parse_hessian(hessian)?;
         let method = parse_method(method)?;
         let (name, text, values) = psi_spec(energy, psi, params)?;
-        let psi = CustomPsi::new(&text, values.clone()).map_err(value_error)?;
-        self.add(Term::Bending {
+        let stiff = self.add(Term::Bending {
             name,
             text,
             values,
             mode,
             method,
         })?;
-        // The term is valid (`add` built it): its rest state cannot fail to bind again.
-        let stiff = match psi {
-            CustomPsi::Small(p) => BendingModel::new(&self.rest, p)
-                .map(|m| StiffRest::of(&m))
-                .map_err(value_error)?,
-            CustomPsi::Large(p) => BendingModel::new(&self.rest, p)
-                .map(|m| StiffRest::of(&m))
-                .map_err(value_error)?,
-        };
         Ok(stiff.map(|s| s.describe(None)))
     }
 
@@ -380,12 +379,13 @@ impl PySystem {
             thickness,
             kind,
         })
+        .map(|_| ())
     }
 
     /// Mass-spring edges of stiffness k (`compressive=False` drops the compressive Hessian term).
     #[pyo3(signature = (k, compressive=true))]
     fn add_springs(&mut self, k: f64, compressive: bool) -> PyResult<()> {
-        self.add(Term::Springs { k, compressive })
+        self.add(Term::Springs { k, compressive }).map(|_| ())
     }
 
     /// Gravity on lumped masses of `density` (mass per area).
@@ -395,11 +395,12 @@ impl PySystem {
             density,
             g: vec3("g", g)?,
         })
+        .map(|_| ())
     }
 
     /// Mass-proportional drag of `rate` (1/s) on lumped masses of `density`.
     fn add_drag(&mut self, density: f64, rate: f64) -> PyResult<()> {
-        self.add(Term::Drag { density, rate })
+        self.add(Term::Drag { density, rate }).map(|_| ())
     }
 
     /// Penalty contact with a sphere; `smoothing` > 0 makes the penalty C² over the first `smoothing` of
@@ -422,6 +423,7 @@ impl PySystem {
             smoothing,
             barrier,
         })
+        .map(|_| ())
     }
 
     /// Penalty contact with a plane (vertices pushed to the side `normal` points to); `smoothing` and
@@ -444,6 +446,7 @@ impl PySystem {
             smoothing,
             barrier,
         })
+        .map(|_| ())
     }
 
     /// Pins vertices (held at their positions by the solvers).

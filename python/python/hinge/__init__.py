@@ -474,9 +474,7 @@ def _globalization(name):
 
 
 def _tolerance(name, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float, _np.floating, _np.integer)):
-        raise ValueError(f"{name} must be a number (0: off), got {value!r}")
-    return float(value)
+    return _number(f"{name} (0: off)", value)
 
 
 def _flag(name, value):
