@@ -12,10 +12,8 @@ use hinge_core::psi::runtime::ParamValue;
 use hinge_core::{TriMesh, export};
 use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
 use hinge_energies::contact::{Contact, Obstacle};
-use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::gravity::{Gravity, lumped_masses};
-use hinge_energies::membrane::StvkMembrane;
-use hinge_energies::neohookean::NeoHookeanMembrane;
+use hinge_energies::membrane::MembraneModel;
 use hinge_energies::quadratic::QuadraticBending;
 use hinge_energies::spring::MassSpring;
 
@@ -295,53 +293,50 @@ fn build(
             names.join(", ")
         ));
     }
-    let term: Box<dyn Energy> = match energy {
-        "mass-spring" => Box::new(
-            MassSpring::new(rest, g("k"))
-                .map_err(model_err)?
-                .drop_compressive_term(g("compressive") == 0.0),
-        ),
-        "bending-springs" => {
-            Box::new(MassSpring::bending_springs(rest, g("k")).map_err(model_err)?)
-        }
-        "quadratic-bending" => Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?),
-        "membrane" => Box::new(
-            StvkMembrane::new(rest, g("young"), g("poisson"), g("thickness")).map_err(model_err)?,
-        ),
-        "corotational-membrane" => Box::new(
-            CorotationalMembrane::from_material(rest, g("young"), g("poisson"), g("thickness"))
+    let term: Box<dyn Energy> = if let Some(model) = MembraneModel::from_energy_name(energy) {
+        model
+            .build(rest, g("young"), g("poisson"), g("thickness"))
+            .map_err(model_err)?
+    } else {
+        match energy {
+            "mass-spring" => Box::new(
+                MassSpring::new(rest, g("k"))
+                    .map_err(model_err)?
+                    .drop_compressive_term(g("compressive") == 0.0),
+            ),
+            "bending-springs" => {
+                Box::new(MassSpring::bending_springs(rest, g("k")).map_err(model_err)?)
+            }
+            "quadratic-bending" => {
+                Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?)
+            }
+            "gravity" => Box::new(
+                Gravity::new(
+                    lumped_masses(rest, g("density")),
+                    Vector3::new(0.0, 0.0, -g("g")),
+                )
                 .map_err(model_err)?,
-        ),
-        "neo-hookean-membrane" => Box::new(
-            NeoHookeanMembrane::new(rest, g("young"), g("poisson"), g("thickness"))
-                .map_err(model_err)?,
-        ),
-        "gravity" => Box::new(
-            Gravity::new(
-                lumped_masses(rest, g("density")),
-                Vector3::new(0.0, 0.0, -g("g")),
+            ),
+            "contact-sphere" => contact(
+                n,
+                Obstacle::Sphere {
+                    center: Vector3::new(g("cx"), g("cy"), g("cz")),
+                    radius: g("radius"),
+                },
+                p,
             )
             .map_err(model_err)?,
-        ),
-        "contact-sphere" => contact(
-            n,
-            Obstacle::Sphere {
-                center: Vector3::new(g("cx"), g("cy"), g("cz")),
-                radius: g("radius"),
-            },
-            p,
-        )
-        .map_err(model_err)?,
-        "contact-plane" => contact(
-            n,
-            Obstacle::Plane {
-                point: Vector3::new(g("px"), g("py"), g("pz")),
-                normal: Vector3::new(g("nx"), g("ny"), g("nz")),
-            },
-            p,
-        )
-        .map_err(model_err)?,
-        other => return Err(format!("unknown energy `{other}`")),
+            "contact-plane" => contact(
+                n,
+                Obstacle::Plane {
+                    point: Vector3::new(g("px"), g("py"), g("pz")),
+                    normal: Vector3::new(g("nx"), g("ny"), g("nz")),
+                },
+                p,
+            )
+            .map_err(model_err)?,
+            other => return Err(format!("unknown energy `{other}`")),
+        }
     };
     System::new(n, vec![term]).map_err(|e| e.to_string())
 }

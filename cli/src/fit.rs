@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 use hinge_core::meshio::FileNumbering;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::{ElementNames, TriMesh};
+use hinge_energies::membrane::MembraneModel;
 use hinge_solver::adjoint::{AdjointError, Fit, FitOptions, FitVariable, Link, TargetLoss};
 use hinge_solver::newton::{Newton, NewtonParams};
 use hinge_solver::statics::continued_start;
@@ -121,12 +122,13 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         parameter: parameter.into(),
         exponent,
     };
-    let membrane = |stvk_parameter: &str| -> Link {
-        match m.membrane.as_str() {
-            "corotational" => power("corotational-membrane.stiffness", 1.0),
-            // The same parameters as the StVK membrane's, under the energy's own name.
-            "neo-hookean" => power(&format!("neo-hookean-{stvk_parameter}"), 1.0),
-            _ => power(stvk_parameter, 1.0),
+    let model = m.model()?;
+    // The membrane parameter `young` or `thickness`: the co-rotational membrane has one stiffness,
+    // proportional to both.
+    let membrane = |parameter: &str| -> Link {
+        match model {
+            MembraneModel::Corotational => power(model.stiffness_parameter(), 1.0),
+            _ => power(&format!("{}.{parameter}", model.energy_name()), 1.0),
         }
     };
     let positive_start = |v: f64| -> Result<Vec<f64>, String> {
@@ -144,14 +146,14 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
             if k_from_material {
                 links.push(power("bending.k", 1.0));
             }
-            links.push(membrane("membrane.young"));
+            links.push(membrane("young"));
             (positive_start(m.young)?, true)
         }
         "material.thickness" => {
             if k_from_material {
                 links.push(power("bending.k", 3.0));
             }
-            links.push(membrane("membrane.thickness"));
+            links.push(membrane("thickness"));
             (positive_start(m.thickness)?, true)
         }
         "material.density" => {
@@ -306,8 +308,9 @@ pub fn fit_scene_until(
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
-    let (parameter, stages) = crate::run::membrane_stages(scene, rest, &mut system)
-        .map_err(|e| crate::run::solver_message(&e, names))?;
+    let (parameter, stages) =
+        crate::run::membrane_stages(scene, scene.material.model()?, rest, &mut system)
+            .map_err(|e| crate::run::solver_message(&e, names))?;
     let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
     let mut fit = Fit::new(&system, &pins, &mut newton, variables, options)
         .map_err(|e| fit_message(&e, names))?;
@@ -540,6 +543,7 @@ mod tests {
     use super::fit_scene;
     use crate::run::{Built, STATIC_ITERATIONS, build, membrane_stages};
     use crate::scene::load;
+    use hinge_energies::membrane::MembraneModel;
     use hinge_solver::adjoint::FitOptions;
     use hinge_solver::newton::{Newton, NewtonParams};
     use hinge_solver::statics::minimize_continued;
@@ -565,7 +569,8 @@ mod tests {
             ..params
         };
         let mut newton = Newton::new(&system, &pins, solver, params).unwrap();
-        let (parameter, stages) = membrane_stages(&truth, &rest, &mut system).unwrap();
+        let (parameter, stages) =
+            membrane_stages(&truth, MembraneModel::Stvk, &rest, &mut system).unwrap();
         assert_eq!(parameter, "membrane.young");
         assert!(!stages.is_empty());
         let mut x = rest.positions().to_vec();

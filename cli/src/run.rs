@@ -25,12 +25,10 @@ use hinge_energies::bending::{
     stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
-use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
-use hinge_energies::membrane::StvkMembrane;
+use hinge_energies::membrane::MembraneModel;
 use hinge_energies::motion::Motion;
-use hinge_energies::neohookean::NeoHookeanMembrane;
 use hinge_energies::pins::Pins;
 use hinge_solver::linear::{
     ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearSolver, PcgJacobi, default_solver,
@@ -320,22 +318,9 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
     let masses = lumped_masses(rest, m.density);
     let mut terms: Vec<Box<dyn Energy>> = vec![
         bending,
-        if m.membrane == "corotational" {
-            Box::new(
-                CorotationalMembrane::from_material(rest, m.young, m.poisson, m.thickness)
-                    .map_err(|e| e.to_string())?,
-            )
-        } else if m.membrane == "neo-hookean" {
-            Box::new(
-                NeoHookeanMembrane::new(rest, m.young, m.poisson, m.thickness)
-                    .map_err(|e| e.to_string())?,
-            )
-        } else {
-            Box::new(
-                StvkMembrane::new(rest, m.young, m.poisson, m.thickness)
-                    .map_err(|e| e.to_string())?,
-            )
-        },
+        m.model()?
+            .build(rest, m.young, m.poisson, m.thickness)
+            .map_err(|e| e.to_string())?,
         Box::new(
             Gravity::new(masses.clone(), Vector3::from(scene.gravity))
                 .map_err(|e| e.to_string())?,
@@ -452,27 +437,29 @@ pub const STATIC_ITERATIONS: usize = 2000;
 /// `membrane.young` with [`hinge_solver::statics::membrane_scales`] for the StVK membrane, and
 /// `corotational-membrane.stiffness` (k = Y h / (1 + ν), proportional to Y) or `neo-hookean-membrane.young`
 /// with [`hinge_solver::statics::continuation_scales`] of the scene's Y and h for the co-rotational and
-/// neo-Hookean ones; none when
-/// `solver.membrane_continuation` is false.
+/// neo-Hookean ones ([`MembraneModel::stiffness_parameter`]); none when `solver.membrane_continuation` is
+/// false.
 ///
 /// # Errors
 /// [`SolverError::Eval`] if the system cannot be evaluated at rest.
 pub fn membrane_stages(
     scene: &Scene,
+    model: MembraneModel,
     rest: &TriMesh,
     system: &mut System,
 ) -> Result<(&'static str, Vec<f64>), SolverError> {
     if !scene.solver.membrane_continuation {
-        return Ok(("membrane.young", Vec::new()));
+        return Ok((model.stiffness_parameter(), Vec::new()));
     }
     let m = &scene.material;
-    match m.membrane.as_str() {
-        "corotational" => continuation_scales(system, rest, m.young, m.thickness)
-            .map(|s| ("corotational-membrane.stiffness", s)),
-        "neo-hookean" => continuation_scales(system, rest, m.young, m.thickness)
-            .map(|s| ("neo-hookean-membrane.young", s)),
-        _ => membrane_scales(system, rest).map(|s| ("membrane.young", s)),
+    let parameter = model.stiffness_parameter();
+    match model {
+        MembraneModel::Corotational | MembraneModel::NeoHookean => {
+            continuation_scales(system, rest, m.young, m.thickness)
+        }
+        MembraneModel::Stvk => membrane_scales(system, rest),
     }
+    .map(|s| (parameter, s))
 }
 
 /// The one-line message of a static solve that failed: the solver's, with a hint when nothing can hold the
@@ -509,11 +496,21 @@ pub fn equilibrium(
     stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
 ) -> Result<RunSummary, String> {
-    equilibrium_observed(scene, rest, out, stop, names, None)
+    equilibrium_observed(
+        scene,
+        rest,
+        out,
+        Hooks {
+            stop,
+            names,
+            ..Hooks::default()
+        },
+    )
 }
 
-/// [`equilibrium`] with `observer` called after every accepted Newton iteration of every continuation
-/// stage ([`Newton::set_observer`]; [`static_progress`] prints progress lines from it).
+/// [`equilibrium`] with [`Hooks`]: `stop` and `names` as there, the observer called after every accepted
+/// Newton iteration of every continuation stage ([`Newton::set_observer`]; [`static_progress`] prints
+/// progress lines from it), and the set-up warnings.
 ///
 /// # Errors
 /// As [`equilibrium`].
@@ -521,10 +518,14 @@ pub fn equilibrium_observed(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
-    stop: Option<&Arc<AtomicBool>>,
-    names: Option<&FileNumbering>,
-    observer: Option<Observer>,
+    hooks: Hooks<'_>,
 ) -> Result<RunSummary, String> {
+    let Hooks {
+        stop,
+        names,
+        observer,
+        mut warn,
+    } = hooks;
     let start = Instant::now();
     let Built {
         mut system,
@@ -535,7 +536,12 @@ pub fn equilibrium_observed(
         stiff_rest,
         ..
     } = build(scene, rest, false)?;
-    warn_stiff_rest(stiff_rest.as_ref(), &scene.bending.energy, names);
+    warn_stiff_rest(
+        stiff_rest.as_ref(),
+        &scene.bending.energy,
+        names,
+        warn.as_deref_mut(),
+    );
     // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
     // 1e9 at h = 0.1 mm) take hundreds of damped Newton steps to swing down: statics gets a larger budget.
     let params = NewtonParams {
@@ -547,7 +553,7 @@ pub fn equilibrium_observed(
     newton.set_observer(observer);
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
-    let (parameter, stages) = membrane_stages(scene, rest, &mut system)
+    let (parameter, stages) = membrane_stages(scene, scene.material.model()?, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
     let (stats, interrupted) =
@@ -828,16 +834,44 @@ fn check_initial_state(
         })
 }
 
-/// The set-up warning of a scene with stiff rest hinges ([`StiffRest`]), one line on stderr.
-fn warn_stiff_rest(stiff: Option<&StiffRest>, energy: &str, names: Option<&FileNumbering>) {
+/// The set-up warning of a scene with stiff rest hinges ([`StiffRest`]), one line: to `warn`, or on stderr
+/// as `hinge: warning: …` without one.
+fn warn_stiff_rest(
+    stiff: Option<&StiffRest>,
+    energy: &str,
+    names: Option<&FileNumbering>,
+    warn: Option<&mut (dyn FnMut(&str) + '_)>,
+) {
     if let Some(s) = stiff {
-        eprintln!(
-            "hinge: warning: {}{}; Newton may need many iterations and substeps",
+        let line = format!(
+            "{}{}; Newton may need many iterations and substeps",
             s.describe(names),
             tan_note(energy)
         );
+        match warn {
+            Some(w) => w(&line),
+            None => eprintln!("hinge: warning: {line}"),
+        }
     }
 }
+
+/// What a caller hooks into a run ([`simulate_observed`], [`equilibrium_observed`]); the default hooks
+/// nothing and prints set-up warnings on stderr.
+#[derive(Default)]
+pub struct Hooks<'a> {
+    /// Raised (Ctrl-C), it ends the run after the current frame, or the solve at its next Newton iteration.
+    pub stop: Option<&'a Arc<AtomicBool>>,
+    /// The rest mesh file's numbering: errors and warnings name vertices and faces as the file counts them.
+    pub names: Option<&'a FileNumbering>,
+    /// Called after every accepted Newton iteration ([`Newton::set_observer`]).
+    pub observer: Option<Observer>,
+    /// Receives each set-up warning (stiff rest hinges, [`StiffRest`]) as one line without the
+    /// `hinge: warning: ` prefix; without it they are printed on stderr with that prefix.
+    pub warn: Option<Warn<'a>>,
+}
+
+/// A receiver of set-up warnings ([`Hooks::warn`]).
+pub type Warn<'a> = Box<dyn FnMut(&str) + 'a>;
 
 /// A failed solve's one-line `message`, with the scene's stiff rest hinges as the likely cause when it has
 /// any: a solve that stalls or gets stuck there otherwise says only what it saw (short steps, a collapsed
@@ -895,12 +929,23 @@ pub fn simulate_until(
     names: Option<&FileNumbering>,
     progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
-    simulate_observed(scene, rest, out, stop, names, None, progress)
+    simulate_observed(
+        scene,
+        rest,
+        out,
+        Hooks {
+            stop,
+            names,
+            ..Hooks::default()
+        },
+        progress,
+    )
 }
 
-/// [`simulate_until`] with `observer` called after every accepted Newton iteration of every implicit step
-/// ([`Newton::set_observer`]; [`trace_line`] formats one). It sees the iterations of every attempt, those of
-/// substeps and of attempts that fail included; it cannot change the run.
+/// [`simulate_until`] with [`Hooks`]: `stop` and `names` as there, the observer called after every accepted
+/// Newton iteration of every implicit step ([`Newton::set_observer`]; [`trace_line`] formats one; it sees
+/// the iterations of every attempt, those of substeps and of attempts that fail included, and cannot
+/// change the run), and the set-up warnings.
 ///
 /// # Errors
 /// As [`simulate`].
@@ -908,11 +953,15 @@ pub fn simulate_observed(
     scene: &Scene,
     rest: &TriMesh,
     out: Option<Output<'_>>,
-    stop: Option<&Arc<AtomicBool>>,
-    names: Option<&FileNumbering>,
-    observer: Option<Observer>,
+    hooks: Hooks<'_>,
     mut progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
+    let Hooks {
+        stop,
+        names,
+        observer,
+        mut warn,
+    } = hooks;
     // Shared by the steppers a run makes (a new one when pins are released).
     let observer = observer.map(|o| Arc::new(std::sync::Mutex::new(o)));
     let start = Instant::now();
@@ -926,7 +975,12 @@ pub fn simulate_observed(
         obstacles,
         stiff_rest,
     } = build(scene, rest, true)?;
-    warn_stiff_rest(stiff_rest.as_ref(), &scene.bending.energy, names);
+    warn_stiff_rest(
+        stiff_rest.as_ref(),
+        &scene.bending.energy,
+        names,
+        warn.as_deref_mut(),
+    );
     let groups = scene.pin_groups(rest)?;
     let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
     fixed.extend(rest.unreferenced_vertices());
@@ -1350,9 +1404,12 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                 &scene,
                 &rest,
                 frames_dir,
-                Some(&*INTERRUPTED),
-                names,
-                Some(progress),
+                Hooks {
+                    stop: Some(&*INTERRUPTED),
+                    names,
+                    observer: Some(progress),
+                    warn: None,
+                },
             )
         })?
     } else {
@@ -1361,9 +1418,12 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                 &scene,
                 &rest,
                 frames_dir,
-                Some(&*INTERRUPTED),
-                names,
-                args.trace.then(tracer),
+                Hooks {
+                    stop: Some(&*INTERRUPTED),
+                    names,
+                    observer: args.trace.then(tracer),
+                    warn: None,
+                },
                 |frame, fs, seconds, _| {
                     println!(
                         "frame {:>4}/{frames}: {} Newton iterations, {} factorizations, {} substep{}, {:.1} ms",
@@ -1455,7 +1515,7 @@ mod tests {
 
     fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
         let mut system = build(scene, rest, false)?.system;
-        super::membrane_stages(scene, rest, &mut system)
+        super::membrane_stages(scene, scene.material.model()?, rest, &mut system)
             .map(|(_, s)| s)
             .map_err(|e| e.to_string())
     }
@@ -1520,7 +1580,13 @@ mod tests {
         let mut corot = strip(1e10, 1e-4);
         corot.material.membrane = "corotational".into();
         let mut system = build(&corot, &rest, false).unwrap().system;
-        let (parameter, corot_stages) = super::membrane_stages(&corot, &rest, &mut system).unwrap();
+        let (parameter, corot_stages) = super::membrane_stages(
+            &corot,
+            super::MembraneModel::Corotational,
+            &rest,
+            &mut system,
+        )
+        .unwrap();
         assert_eq!(parameter, "corotational-membrane.stiffness");
         assert!(system.parameter(parameter).is_ok());
         assert!(
@@ -1559,8 +1625,16 @@ mod tests {
         let progress = static_progress(std::time::Duration::ZERO, move |line| {
             sink.lock().unwrap().push(line);
         });
-        let observed =
-            equilibrium_observed(&scene, &rest, None, None, None, Some(progress)).unwrap();
+        let observed = equilibrium_observed(
+            &scene,
+            &rest,
+            None,
+            super::Hooks {
+                observer: Some(progress),
+                ..super::Hooks::default()
+            },
+        )
+        .unwrap();
         let plain = equilibrium(&scene, &rest, None, None, None).unwrap();
         assert_eq!(
             (

@@ -10,6 +10,7 @@ use hinge_core::error::Num;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_energies::membrane::MembraneModel;
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
@@ -144,7 +145,19 @@ pub struct Material {
 }
 
 fn default_membrane() -> String {
-    "stvk".into()
+    MembraneModel::Stvk.name().into()
+}
+
+impl Material {
+    /// The membrane model `membrane` names.
+    ///
+    /// # Errors
+    /// A one-line message naming `material.membrane` for a name that is not a model's.
+    pub fn model(&self) -> Result<MembraneModel, String> {
+        self.membrane
+            .parse()
+            .map_err(|e| format!("material.membrane: {e}"))
+    }
 }
 
 /// Bending energy and damping.
@@ -862,12 +875,7 @@ impl Scene {
             }
         }
         self.obstacle_motions()?;
-        if !["stvk", "corotational", "neo-hookean"].contains(&self.material.membrane.as_str()) {
-            return Err(format!(
-                "material.membrane: unknown `{}` (stvk, corotational, neo-hookean)",
-                self.material.membrane
-            ));
-        }
+        self.material.model()?;
         if ![
             "faer-llt",
             "faer-lu",

@@ -213,3 +213,150 @@ mod tests {
         }
     }
 }
+
+/// Which membrane model a scene or a binding asks for by name: the one place the names, the energies'
+/// own names and their stiffness parameters are kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum MembraneModel {
+    /// [`StvkMembrane`], `"stvk"`.
+    Stvk,
+    /// [`CorotationalMembrane`](crate::corotational::CorotationalMembrane), `"corotational"`.
+    Corotational,
+    /// [`NeoHookeanMembrane`](crate::neohookean::NeoHookeanMembrane), `"neo-hookean"`.
+    NeoHookean,
+}
+
+/// A membrane model's name that is not one of [`MembraneModel::NAMES`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown `{0}` (stvk, corotational, neo-hookean)")]
+pub struct UnknownMembrane(pub String);
+
+impl MembraneModel {
+    /// Every model, in the order of [`MembraneModel::NAMES`].
+    pub const ALL: [Self; 3] = [Self::Stvk, Self::Corotational, Self::NeoHookean];
+    /// The models' names, as scene files and the Python package spell them.
+    pub const NAMES: [&'static str; 3] = ["stvk", "corotational", "neo-hookean"];
+
+    /// The model's name (`"stvk"`, `"corotational"`, `"neo-hookean"`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Stvk => Self::NAMES[0],
+            Self::Corotational => Self::NAMES[1],
+            Self::NeoHookean => Self::NAMES[2],
+        }
+    }
+
+    /// The name of the energy [`MembraneModel::build`] makes ([`Energy::name`]), which prefixes its
+    /// parameters: `"membrane"`, `"corotational-membrane"`, `"neo-hookean-membrane"`.
+    #[must_use]
+    pub fn energy_name(self) -> &'static str {
+        match self {
+            Self::Stvk => "membrane",
+            Self::Corotational => "corotational-membrane",
+            Self::NeoHookean => "neo-hookean-membrane",
+        }
+    }
+
+    /// The model whose [`MembraneModel::energy_name`] is `name`, if any.
+    #[must_use]
+    pub fn from_energy_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.energy_name() == name)
+    }
+
+    /// The parameter that scales the membrane's stiffness linearly: `membrane.young`,
+    /// `corotational-membrane.stiffness` (`k = Y h / (1 + ν)`), `neo-hookean-membrane.young`.
+    #[must_use]
+    pub fn stiffness_parameter(self) -> &'static str {
+        match self {
+            Self::Stvk => "membrane.young",
+            Self::Corotational => "corotational-membrane.stiffness",
+            Self::NeoHookean => "neo-hookean-membrane.young",
+        }
+    }
+
+    /// The membrane of this model over `rest`, from Young's modulus, Poisson ratio and thickness.
+    ///
+    /// # Errors
+    /// The model's constructor's: [`EvalError::Element`] for material parameters out of range or a rest
+    /// triangle without area (named).
+    pub fn build(
+        self,
+        rest: &TriMesh,
+        young: f64,
+        poisson: f64,
+        thickness: f64,
+    ) -> Result<Box<dyn Energy>, EvalError> {
+        Ok(match self {
+            Self::Stvk => Box::new(StvkMembrane::new(rest, young, poisson, thickness)?),
+            Self::Corotational => {
+                Box::new(crate::corotational::CorotationalMembrane::from_material(
+                    rest, young, poisson, thickness,
+                )?)
+            }
+            Self::NeoHookean => Box::new(crate::neohookean::NeoHookeanMembrane::new(
+                rest, young, poisson, thickness,
+            )?),
+        })
+    }
+}
+
+impl std::str::FromStr for MembraneModel {
+    type Err = UnknownMembrane;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| UnknownMembrane(s.to_string()))
+    }
+}
+
+impl std::fmt::Display for MembraneModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+#[cfg(test)]
+mod model_tests {
+    use super::MembraneModel;
+    use hinge_core::TriMesh;
+    use hinge_core::nalgebra::Vector3;
+
+    #[test]
+    fn names_round_trip_and_build_the_energy_they_name() {
+        let rest = TriMesh::new(
+            vec![
+                Vector3::new(0.0, 0.0, 0.0),
+                Vector3::new(1.0, 0.0, 0.0),
+                Vector3::new(0.2, 0.9, 0.0),
+            ],
+            vec![[0, 1, 2]],
+        )
+        .unwrap();
+        for (m, name) in MembraneModel::ALL.into_iter().zip(MembraneModel::NAMES) {
+            assert_eq!(name.parse::<MembraneModel>(), Ok(m));
+            assert_eq!(m.to_string(), name);
+            let e = m.build(&rest, 1e6, 0.3, 1e-3).unwrap();
+            assert_eq!(e.name(), m.energy_name());
+            assert_eq!(MembraneModel::from_energy_name(e.name()), Some(m));
+            let stiffness = format!("{}.{}", e.name(), e.parameters()[0].name);
+            let names: Vec<String> = e
+                .parameters()
+                .iter()
+                .map(|p| format!("{}.{}", e.name(), p.name))
+                .collect();
+            assert!(
+                names.iter().any(|n| n == m.stiffness_parameter()),
+                "{m}: {names:?} ({stiffness})"
+            );
+        }
+        let err = "linear".parse::<MembraneModel>().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "unknown `linear` (stvk, corotational, neo-hookean)"
+        );
+        assert!(MembraneModel::Stvk.build(&rest, 1e6, 0.5, 1e-3).is_err());
+    }
+}

@@ -12,11 +12,9 @@ use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
 use hinge_core::psi::runtime::ParamValue;
 use hinge_energies::contact::{Contact, Obstacle};
-use hinge_energies::corotational::CorotationalMembrane;
 use hinge_energies::drag::Drag;
 use hinge_energies::gravity::{Gravity, lumped_masses};
-use hinge_energies::membrane::StvkMembrane;
-use hinge_energies::neohookean::NeoHookeanMembrane;
+use hinge_energies::membrane::MembraneModel;
 use hinge_energies::pins::Pins;
 use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
@@ -37,14 +35,6 @@ use crate::{
     detached, interruptible, mesh_from, parse_hessian, parse_method, psi_spec, value_error,
 };
 
-/// A membrane term's model.
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum MembraneKind {
-    Stvk,
-    Corotational,
-    NeoHookean,
-}
-
 /// One term of a system, as specified (built into energies when the system is used).
 #[derive(Clone)]
 enum Term {
@@ -59,7 +49,7 @@ enum Term {
         young: f64,
         poisson: f64,
         thickness: f64,
-        kind: MembraneKind,
+        kind: MembraneModel,
     },
     Springs {
         k: f64,
@@ -130,18 +120,7 @@ fn build_term(rest: &TriMesh, t: &Term) -> Result<BuiltTerm, String> {
             poisson,
             thickness,
             kind,
-        } => match kind {
-            MembraneKind::Stvk => {
-                Box::new(StvkMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?)
-            }
-            MembraneKind::Corotational => Box::new(
-                CorotationalMembrane::from_material(rest, *young, *poisson, *thickness)
-                    .map_err(e)?,
-            ),
-            MembraneKind::NeoHookean => {
-                Box::new(NeoHookeanMembrane::new(rest, *young, *poisson, *thickness).map_err(e)?)
-            }
-        },
+        } => kind.build(rest, *young, *poisson, *thickness).map_err(e)?,
         Term::Springs { k, compressive } => Box::new(
             MassSpring::new(rest, *k)
                 .map_err(e)?
@@ -363,16 +342,9 @@ impl PySystem {
         thickness: f64,
         kind: &str,
     ) -> PyResult<()> {
-        let kind = match kind {
-            "stvk" => MembraneKind::Stvk,
-            "corotational" => MembraneKind::Corotational,
-            "neo-hookean" => MembraneKind::NeoHookean,
-            other => {
-                return Err(value_error(format!(
-                    "membrane kind: unknown `{other}` (stvk, corotational, neo-hookean)"
-                )));
-            }
-        };
+        let kind: MembraneModel = kind
+            .parse()
+            .map_err(|e| value_error(format!("membrane kind: {e}")))?;
         self.add(Term::Membrane {
             young,
             poisson,
@@ -495,15 +467,7 @@ impl PySystem {
             .iter()
             .map(|t| match t {
                 Term::Bending { name, .. } => name.clone(),
-                Term::Membrane {
-                    kind: MembraneKind::Corotational,
-                    ..
-                } => "corotational-membrane".into(),
-                Term::Membrane {
-                    kind: MembraneKind::NeoHookean,
-                    ..
-                } => "neo-hookean-membrane".into(),
-                Term::Membrane { .. } => "membrane".into(),
+                Term::Membrane { kind, .. } => kind.energy_name().into(),
                 Term::Springs { .. } => "mass-spring".into(),
                 Term::Gravity { .. } => "gravity".into(),
                 Term::Drag { .. } => "drag".into(),
@@ -731,7 +695,7 @@ fn continuation(
             .zip(&labels)
             .filter(|(t, _)| {
                 matches!(t, Term::Membrane { kind, .. }
-                    if (*kind == MembraneKind::Corotational) == corotational)
+                    if (*kind == MembraneModel::Corotational) == corotational)
             })
             .collect()
     };
@@ -975,20 +939,34 @@ pub fn run_scene<'py>(
             }
         }) as hinge_solver::newton::Observer
     });
+    // Set-up warnings, raised as `hinge.MeshWarning` once the run is over (whether or not it failed).
+    let mut warnings: Vec<String> = Vec::new();
     let (summary, signal) = interruptible(py, |stop| {
         hinge_cli::run::simulate_observed(
             &sc,
             &rest,
             None,
-            Some(stop),
-            None,
-            observer,
+            hinge_cli::run::Hooks {
+                stop: Some(stop),
+                names: None,
+                observer,
+                warn: Some(Box::new(|line: &str| {
+                    warnings.push(format!("{line} (vertices from 0)"));
+                })),
+            },
             |k, _, _, x| {
                 xs.push(x.to_vec());
                 frame.store(k + 1, std::sync::atomic::Ordering::Relaxed);
             },
         )
     });
+    if !warnings.is_empty() {
+        let category = py.import("hinge")?.getattr("MeshWarning")?;
+        for w in warnings {
+            let text = std::ffi::CString::new(w.replace('\0', " ")).map_err(value_error)?;
+            PyErr::warn(py, &category, &text, 2)?;
+        }
+    }
     // Ctrl-C ends the run after the frame it is in (or at its next Newton iteration) and raises here.
     if let Some(e) = signal {
         return Err(e);

@@ -3,6 +3,7 @@ other, numpy dtypes and layouts, per-hinge parameters, threads, the GIL, and Val
 
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -727,7 +728,6 @@ def test_a_mesh_split_along_a_seam_warns_and_is_cut_there():
     across = sum(side[tuple(sorted(h[:3]))] != side[tuple(sorted(h[1:]))] for h in hinge.hinges(V, F).tolist())
     assert across >= 4
     assert len(hinge.hinges(V2, F2)) == len(hinge.hinges(V, F)) - across
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert hinge.System(V, F).coincident_vertices == []
@@ -1201,7 +1201,6 @@ def test_ctrl_c_ends_long_calls_with_keyboard_interrupt_and_the_state_kept():
 
 
 def test_rest_stiffening_of_a_folded_crease():
-    import warnings
 
     # Two triangles on the hinge (0,0,0)-(1,0,0), the wing vertex 3 turned by `fold` from flat.
     for fold in (0.0, 1.0, 2.5, 3.09, np.pi - 1e-4):
@@ -1233,6 +1232,44 @@ def test_rest_stiffening_of_a_folded_crease():
         # psi'' = 0 everywhere: no flat reference.
         assert np.isnan(linear.rest_stiffening()[0])
         assert s.terms == ["tan-bending"]
+
+
+def test_run_scene_warns_of_a_stiff_rest_crease_as_a_mesh_warning(tmp_path, capfd):
+    # The hinge's edge is the file's vertices 2 and 5 (from 0: 1 and 4); the wing vertex 3 is folded to
+    # 1e-4 rad of flat (tan bending 1/cos^4 = 1.6e17 times stiffer there), or not folded at all.
+    for fold, stiff in ((np.pi - 1e-4, True), (0.5, False)):
+        obj = tmp_path / "pair.obj"
+        obj.write_text(
+            "# folded pair\nv 0.4 -0.9 0.5\nv 1 0 0.5\n"
+            f"v 0.5 {0.8 * np.cos(fold)} {0.5 + 0.8 * np.sin(fold)}\n"
+            "v 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n"
+        )
+        scene = tmp_path / "pair.toml"
+        scene.write_text(
+            'name = "pair"\nframes = 2\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
+            "[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n"
+            '[bending]\nenergy = "tan-bending"\n'
+        )
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            _, _, X, summary = hinge.run_scene(str(scene))
+        assert X.shape == (2, 5, 3) and summary["frames"] == 2
+        messages = [str(w.message) for w in caught]
+        assert len(caught) == (1 if stiff else 0), messages
+        for w in caught:
+            assert w.category is hinge.MeshWarning
+            assert w.filename == __file__, w.filename
+            assert "1 rest hinge is at least 1e6 times stiffer than flat" in str(w.message)
+            assert "between vertices 1 and 4" in str(w.message) and "(vertices from 0)" in str(w.message)
+        # Nothing is printed on the process's stderr: the warning is Python's to show or filter.
+        assert capfd.readouterr().err == ""
+    # Warnings as errors: the warning raises (as any Python warning would), no frames are returned.
+    obj.write_text(obj.read_text().replace(f"{0.8 * np.cos(0.5)}", f"{0.8 * np.cos(np.pi - 1e-4)}")
+                   .replace(f"{0.5 + 0.8 * np.sin(0.5)}", f"{0.5 + 0.8 * np.sin(np.pi - 1e-4)}"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", hinge.MeshWarning)
+        with pytest.raises(hinge.MeshWarning):
+            hinge.run_scene(str(scene))
 
 
 def _system():
