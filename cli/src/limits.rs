@@ -114,7 +114,7 @@ pub fn available_memory() -> Option<u64> {
     kib.checked_mul(1024)
 }
 
-/// Checks that a generated mesh of `vertices` vertices fits in the memory available, at `per_vertex` bytes
+/// Checks that a mesh of `vertices` vertices (generated, or read from a scene's mesh file) fits in the memory available, at `per_vertex` bytes
 /// per vertex ([`RUN_BYTES_PER_VERTEX`], …): a size the machine cannot hold is a one-line error, not a
 /// process the system kills once it has used all memory. No check where the available memory is unknown.
 ///

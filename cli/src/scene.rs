@@ -1060,7 +1060,8 @@ impl Scene {
     /// The rest mesh.
     ///
     /// # Errors
-    /// A one-line message (unreadable or invalid mesh file, invalid grid).
+    /// A one-line message (unreadable or invalid mesh file, invalid grid, a mesh too large for the memory
+    /// available: [`crate::limits::memory`] at [`crate::limits::RUN_BYTES_PER_VERTEX`]).
     pub fn rest_mesh(&self, base: Option<&Path>) -> Result<TriMesh, String> {
         self.rest_mesh_numbered(base).map(|(mesh, _)| mesh)
     }
@@ -1076,7 +1077,14 @@ impl Scene {
     ) -> Result<(TriMesh, Option<hinge_core::meshio::FileNumbering>), String> {
         if let Some(obj) = &self.mesh.obj {
             let path = base.map_or(obj.clone(), |b| b.join(obj));
-            return crate::files::read_numbered(&path).map(|(m, n)| (m, Some(n)));
+            let (mesh, numbering) = crate::files::read_numbered(&path)?;
+            // Read, the mesh costs little; a run on it far more.
+            crate::limits::memory(
+                mesh.n_vertices() as u128,
+                crate::limits::RUN_BYTES_PER_VERTEX,
+                &format!("mesh.obj: {}", path.display()),
+            )?;
+            return Ok((mesh, Some(numbering)));
         }
         let o = Vector3::from(self.mesh.origin);
         if self.mesh.shape.is_some() {

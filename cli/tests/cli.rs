@@ -3567,6 +3567,47 @@ fn meshes_too_large_for_the_machine_are_one_line() {
             "{args:?}: {err}"
         );
     }
+    // A scene's mesh file with more vertices than a run on this machine can hold (24 KiB each): one line
+    // naming the file, before the run builds anything. Written only where that is at most 4 million
+    // vertices (a 32 MB file: machines with up to ~85 GiB available).
+    let available = std::fs::read_to_string("/proc/meminfo").ok().and_then(|t| {
+        t.lines()
+            .find(|l| l.starts_with("MemAvailable:"))
+            .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+    });
+    match available.map(|kib| kib / 24 + kib / 480 + 1000) {
+        Some(n) if n <= 4_000_000 => {
+            let mut obj = String::with_capacity(8 * n as usize + 64);
+            obj.push_str("v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+            for _ in 3..n {
+                obj.push_str("v 0 0 2\n");
+            }
+            obj.push_str("f 1 2 3\n");
+            let mesh = dir.join("scan.obj");
+            std::fs::write(&mesh, obj).unwrap();
+            let scene = scene_variant(
+                &dir,
+                "scan.toml",
+                "drape",
+                &[("cells = [30, 30]", "obj = \"scan.obj\"\n# cells = [30, 30]")],
+            );
+            let o = hinge(&["run", scene.to_str().unwrap(), "--no-frames", "--out", out]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{err}");
+            // The vertices in no face are noted first (a warning line); then the one error line.
+            let lines: Vec<&str> = err.trim_end().lines().collect();
+            assert_eq!(lines.len(), 2, "{err}");
+            assert!(lines[0].starts_with("hinge: warning: ") && lines[0].contains("in no face"));
+            let err = lines[1];
+            assert!(
+                err.starts_with("hinge: mesh.obj: ")
+                    && err.contains("scan.obj: a mesh of ")
+                    && err.contains("vertices needs about"),
+                "{err}"
+            );
+        }
+        _ => println!("mesh file check skipped: MemAvailable {available:?} KiB"),
+    }
 }
 
 /// A stiffness whose Hessian overflows f64 (Young's modulus 1e308 Pa) ends the run with one line naming the
