@@ -414,7 +414,7 @@ pub struct SolverSpec {
     /// leaves the smaller factor), `amd` or `nested-dissection` (see `hinge_solver::ordering`).
     #[serde(default = "default_ordering")]
     pub ordering: String,
-    /// Newton iteration limit per step.
+    /// Newton iteration limit per step (1 to 1 000 000; a static solve allows itself at least 2 000).
     #[serde(default = "default_iterations")]
     pub max_iterations: usize,
     /// Newton gradient tolerance.
@@ -703,6 +703,19 @@ impl Scene {
             return Err(format!(
                 "solver.substeps: must be from 1 to 10 000 000, got {}",
                 self.solver.substeps
+            ));
+        }
+        // A budget beyond a million Newton iterations per step is a run that never ends, not a limit.
+        if !(1..=1_000_000).contains(&self.solver.max_iterations) {
+            return Err(format!(
+                "solver.max_iterations: must be from 1 to 1 000 000, got {}",
+                self.solver.max_iterations
+            ));
+        }
+        if self.solver.max_substep_halvings > 30 {
+            return Err(format!(
+                "solver.max_substep_halvings: must be from 0 to 30, got {}",
+                self.solver.max_substep_halvings
             ));
         }
         if let Some(p) = &self.bending.plasticity {

@@ -1675,8 +1675,9 @@ fn ctrl_c_stops_a_static_solve_between_newton_iterations() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// Scene values at the edges of their types: an iteration budget of 2³² runs like any other (it once
-/// aborted the process reserving 32 GiB for the iteration history), and values far outside their range are
+/// Scene values at the edges of their types: the largest iteration budget, 10⁶, runs like any other (2³² once
+/// aborted the process reserving 32 GiB for the iteration history; it is now refused, as a budget that never
+/// ends a run that does not converge), and values far outside their range are
 /// named in short scientific notation, not hundreds of digits; values each in range whose product (the
 /// stiffnesses, ∝ Y·h³) underflows or overflows are refused, naming what they make.
 #[test]
@@ -1686,7 +1687,7 @@ fn extreme_scene_values_run_or_fail_in_one_short_line() {
         &dir,
         "budget.toml",
         "drape",
-        &[("max_iterations = 300", "max_iterations = 4294967296")],
+        &[("max_iterations = 300", "max_iterations = 1000000")],
     );
     let out = dir.join("out");
     let o = hinge(&[
@@ -1701,6 +1702,11 @@ fn extreme_scene_values_run_or_fail_in_one_short_line() {
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for (from, to, shown) in [
+        (
+            "max_iterations = 300",
+            "max_iterations = 4294967296",
+            "solver.max_iterations: must be from 1 to 1 000 000, got 4294967296",
+        ),
         ("young = 2e5", "young = -1e308", "got -1e308"),
         (
             "poisson = 0.3",
@@ -2435,15 +2441,28 @@ fn explicit_integrator_runs_below_its_limit_and_stops_on_one_line_above_it() {
         }
     }
     assert!(out.join("frame_0000.obj").exists());
-    // Unknown integrator, zero substeps: one line naming the key.
+    // Unknown integrator, zero substeps, Newton budgets out of range: one line naming the key.
     for (extra, needle) in [
         (
             "integrator = \"verlet\"",
             "solver.integrator: unknown `verlet`",
         ),
         ("substeps = 0", "solver.substeps"),
+        (
+            "max_iterations = 0",
+            "solver.max_iterations: must be from 1 to 1 000 000, got 0",
+        ),
+        (
+            "max_iterations = 18446744073709551615",
+            "solver.max_iterations: must be from 1 to 1 000 000, got 18446744073709551615",
+        ),
+        (
+            "max_substep_halvings = 31",
+            "solver.max_substep_halvings: must be from 0 to 30, got 31",
+        ),
     ] {
         let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
+            .replace("max_iterations = 200\n", "")
             .replace("[solver]", &format!("[solver]\n{extra}"));
         let file = dir.join("bad.toml");
         std::fs::write(&file, text).unwrap();
