@@ -1789,4 +1789,67 @@ mod tests {
             without.newton_iterations
         );
     }
+
+    /// Set-up warnings go to [`super::Hooks::warn`] when one is given (the Python package's way), in the
+    /// file's numbering with `names` and from 0 without, for dynamics and statics alike; none for a mild
+    /// crease.
+    #[test]
+    fn set_up_warnings_reach_the_warn_hook_in_either_numbering() {
+        let dir = std::env::temp_dir().join(format!("hinge-hooks-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // The hinge's edge is the file's vertices 2 and 5 (from 0: 1 and 4); the wing vertex 3 folded by
+        // `fold` from flat about it. No gravity: the rest state is the equilibrium, and the runs succeed.
+        let write = |fold: f64| {
+            let (s, c) = fold.sin_cos();
+            let obj = format!(
+                "v 0.4 -0.9 0.5\nv 1 0 0.5\nv 0.5 {} {}\nv 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n",
+                0.8 * c,
+                0.5 + 0.8 * s
+            );
+            std::fs::write(dir.join("pair.obj"), obj).unwrap();
+            let path = dir.join("pair.toml");
+            std::fs::write(
+                &path,
+                "name = \"pair\"\nframes = 1\ndt = 0.0166\ngravity = [0.0, 0.0, 0.0]\n[mesh]\n\
+                 obj = \"pair.obj\"\n[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\n\
+                 density = 0.1\n[bending]\nenergy = \"tan-bending\"\n",
+            )
+            .unwrap();
+            load(path.to_str().unwrap()).unwrap()
+        };
+        for (fold, stiff) in [(std::f64::consts::PI - 1e-4, true), (2.5, false)] {
+            let (scene, base) = write(fold);
+            let (rest, numbering) = scene.rest_mesh_numbered(base.as_deref()).unwrap();
+            for (names, edge) in [
+                (None, "between vertices 1 and 4"),
+                (numbering.as_ref(), "between vertices 2 and 5"),
+            ] {
+                for statics in [false, true] {
+                    let mut seen: Vec<String> = Vec::new();
+                    let hooks = super::Hooks {
+                        names,
+                        warn: Some(Box::new(|line: &str| seen.push(line.to_string()))),
+                        ..super::Hooks::default()
+                    };
+                    let summary = if statics {
+                        equilibrium_observed(&scene, &rest, None, hooks)
+                    } else {
+                        super::simulate_observed(&scene, &rest, None, hooks, |_, _, _, _| {})
+                    };
+                    assert!(summary.is_ok(), "{summary:?}");
+                    assert_eq!(seen.len(), usize::from(stiff), "{seen:?}");
+                    for line in &seen {
+                        assert!(
+                            line.starts_with(
+                                "1 rest hinge is at least 1e6 times stiffer than flat"
+                            ) && line.contains(edge)
+                                && line.ends_with("Newton may need many iterations and substeps"),
+                            "{line}"
+                        );
+                    }
+                }
+            }
+        }
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
