@@ -313,7 +313,12 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             crate::scene::CustomPsi::Small(p) => bending_term(rest, p, f)?,
             crate::scene::CustomPsi::Large(p) => bending_term(rest, p, f)?,
         },
-        _ => bending_term(rest, TanBending { k }, f)?,
+        "tan-bending" => bending_term(rest, TanBending { k }, f)?,
+        other => {
+            return Err(format!(
+                "bending.energy: unknown `{other}` (discrete-shells, tan-bending, willmore, bridson, custom)"
+            ));
+        }
     };
     let masses = lumped_masses(rest, m.density);
     let mut terms: Vec<Box<dyn Energy>> = vec![
@@ -1851,5 +1856,24 @@ mod tests {
             }
         }
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A scene changed in code after validation (its fields are public) with an unknown bending energy is
+    /// an error naming the key, not silently the tan energy.
+    #[test]
+    fn an_unknown_bending_energy_is_named_by_build() {
+        let (mut scene, _) = load("drape").unwrap();
+        let rest = scene.rest_mesh(None).unwrap();
+        assert!(build(&scene, &rest, true).is_ok());
+        scene.bending.energy = "tan".into();
+        let err = build(&scene, &rest, true).err().unwrap();
+        assert!(err.starts_with("bending.energy: unknown `tan`"), "{err}");
+        scene.bending.energy = "tan-bending".into();
+        scene.material.membrane = "linear".into();
+        let err = build(&scene, &rest, true).err().unwrap();
+        assert!(
+            err.starts_with("material.membrane: unknown `linear`"),
+            "{err}"
+        );
     }
 }
