@@ -501,16 +501,7 @@ pub fn equilibrium(
     stop: Option<&Arc<AtomicBool>>,
     names: Option<&FileNumbering>,
 ) -> Result<RunSummary, String> {
-    equilibrium_observed(
-        scene,
-        rest,
-        out,
-        Hooks {
-            stop,
-            names,
-            ..Hooks::default()
-        },
-    )
+    equilibrium_observed(scene, rest, out, Hooks::new(stop, names))
 }
 
 /// [`equilibrium`] with [`Hooks`]: `stop` and `names` as there, the observer called after every accepted
@@ -875,6 +866,18 @@ pub struct Hooks<'a> {
     pub warn: Option<Warn<'a>>,
 }
 
+impl<'a> Hooks<'a> {
+    /// Hooks with the stop flag and the file numbering only (no observer; set-up warnings on stderr).
+    #[must_use]
+    pub fn new(stop: Option<&'a Arc<AtomicBool>>, names: Option<&'a FileNumbering>) -> Self {
+        Self {
+            stop,
+            names,
+            ..Self::default()
+        }
+    }
+}
+
 /// A receiver of set-up warnings ([`Hooks::warn`]).
 pub type Warn<'a> = Box<dyn FnMut(&str) + 'a>;
 
@@ -934,17 +937,7 @@ pub fn simulate_until(
     names: Option<&FileNumbering>,
     progress: impl FnMut(usize, &FrameStats, f64, &[Vector3<f64>]),
 ) -> Result<RunSummary, String> {
-    simulate_observed(
-        scene,
-        rest,
-        out,
-        Hooks {
-            stop,
-            names,
-            ..Hooks::default()
-        },
-        progress,
-    )
+    simulate_observed(scene, rest, out, Hooks::new(stop, names), progress)
 }
 
 /// [`simulate_until`] with [`Hooks`]: `stop` and `names` as there, the observer called after every accepted
