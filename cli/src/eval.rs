@@ -293,50 +293,48 @@ fn build(
             names.join(", ")
         ));
     }
-    let term: Box<dyn Energy> = if let Some(model) = MembraneModel::from_energy_name(energy) {
-        model
+    if let Some(model) = MembraneModel::from_energy_name(energy) {
+        let term = model
             .build(rest, g("young"), g("poisson"), g("thickness"))
-            .map_err(model_err)?
-    } else {
-        match energy {
-            "mass-spring" => Box::new(
-                MassSpring::new(rest, g("k"))
-                    .map_err(model_err)?
-                    .drop_compressive_term(g("compressive") == 0.0),
-            ),
-            "bending-springs" => {
-                Box::new(MassSpring::bending_springs(rest, g("k")).map_err(model_err)?)
-            }
-            "quadratic-bending" => {
-                Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?)
-            }
-            "gravity" => Box::new(
-                Gravity::new(
-                    lumped_masses(rest, g("density")),
-                    Vector3::new(0.0, 0.0, -g("g")),
-                )
-                .map_err(model_err)?,
-            ),
-            "contact-sphere" => contact(
-                n,
-                Obstacle::Sphere {
-                    center: Vector3::new(g("cx"), g("cy"), g("cz")),
-                    radius: g("radius"),
-                },
-                p,
-            )
-            .map_err(model_err)?,
-            "contact-plane" => contact(
-                n,
-                Obstacle::Plane {
-                    point: Vector3::new(g("px"), g("py"), g("pz")),
-                    normal: Vector3::new(g("nx"), g("ny"), g("nz")),
-                },
-                p,
-            )
-            .map_err(model_err)?,
-            other => return Err(format!("unknown energy `{other}`")),
+            .map_err(model_err)?;
+        return System::new(n, vec![term]).map_err(|e| e.to_string());
+    }
+    let term: Box<dyn Energy> = match energy {
+        "mass-spring" => Box::new(
+            MassSpring::new(rest, g("k"))
+                .map_err(model_err)?
+                .drop_compressive_term(g("compressive") == 0.0),
+        ),
+        "bending-springs" => {
+            Box::new(MassSpring::bending_springs(rest, g("k")).map_err(model_err)?)
         }
+        "quadratic-bending" => Box::new(QuadraticBending::new(rest, g("k")).map_err(model_err)?),
+        "gravity" => Box::new(
+            Gravity::new(
+                lumped_masses(rest, g("density")),
+                Vector3::new(0.0, 0.0, -g("g")),
+            )
+            .map_err(model_err)?,
+        ),
+        "contact-sphere" => contact(
+            n,
+            Obstacle::Sphere {
+                center: Vector3::new(g("cx"), g("cy"), g("cz")),
+                radius: g("radius"),
+            },
+            p,
+        )
+        .map_err(model_err)?,
+        "contact-plane" => contact(
+            n,
+            Obstacle::Plane {
+                point: Vector3::new(g("px"), g("py"), g("pz")),
+                normal: Vector3::new(g("nx"), g("ny"), g("nz")),
+            },
+            p,
+        )
+        .map_err(model_err)?,
+        other => return Err(format!("unknown energy `{other}`")),
     };
     System::new(n, vec![term]).map_err(|e| e.to_string())
 }

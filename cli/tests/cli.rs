@@ -579,6 +579,89 @@ fn eval_hessian_modes_write_the_models_hessians() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `hinge eval` with each membrane model: energy and gradient equal the library's own constructor's, on a
+/// jittered grid (the models are built by name through `MembraneModel` in the CLI).
+#[test]
+fn eval_membranes_match_their_constructors() {
+    use hinge_core::energy::{Energy, System};
+    use hinge_energies::corotational::CorotationalMembrane;
+    use hinge_energies::membrane::StvkMembrane;
+    use hinge_energies::neohookean::NeoHookeanMembrane;
+    let dir = tmp("eval-membranes");
+    let rest = hinge_core::obj::read_obj(data("grid80_rest.obj")).unwrap();
+    let def = hinge_core::obj::read_obj(data("grid80_jitter.obj")).unwrap();
+    let (young, poisson, thickness) = (1.5e4, 0.3, 2e-3);
+    let terms: [(&str, Box<dyn Energy>); 3] = [
+        (
+            "membrane",
+            Box::new(StvkMembrane::new(&rest, young, poisson, thickness).unwrap()),
+        ),
+        (
+            "corotational-membrane",
+            Box::new(
+                CorotationalMembrane::from_material(&rest, young, poisson, thickness).unwrap(),
+            ),
+        ),
+        (
+            "neo-hookean-membrane",
+            Box::new(NeoHookeanMembrane::new(&rest, young, poisson, thickness).unwrap()),
+        ),
+    ];
+    let mut energies = Vec::new();
+    for (name, term) in terms {
+        let mut system = System::new(rest.n_vertices(), vec![term]).unwrap();
+        let e = system
+            .evaluate(def.positions(), Request::ALL, Parallelism::Sequential)
+            .unwrap();
+        let out = dir.join(name);
+        let o = hinge(&[
+            "eval",
+            "--rest",
+            &data("grid80_rest.obj"),
+            "--deformed",
+            &data("grid80_jitter.obj"),
+            "--energy",
+            name,
+            "--param",
+            "young=1.5e4",
+            "--param",
+            "poisson=0.3",
+            "--param",
+            "thickness=2e-3",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        // The energy as printed, parsed by the standard library (exactly rounded; serde_json's default
+        // float parser may be off by an ulp).
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        let energy: f64 = stdout
+            .split("\"energy\": ")
+            .nth(1)
+            .and_then(|r| r.split([',', '}']).next())
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap();
+        assert_eq!(energy, e.energy, "{name}");
+        let grad: Vec<f64> = std::fs::read_to_string(out.join("gradient.txt"))
+            .unwrap()
+            .lines()
+            .map(|l| l.parse().unwrap())
+            .collect();
+        assert_eq!(grad, e.gradient, "{name}");
+        assert!(e.energy > 0.0, "{name}: the jittered grid is strained");
+        energies.push(e.energy);
+    }
+    // Three different models: three different energies.
+    assert!(energies[0] != energies[1] && energies[1] != energies[2] && energies[0] != energies[2]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn eval_contact_models_match_their_formulas() {
     let dir = tmp("eval-contact");
