@@ -636,17 +636,9 @@ fn eval_membranes_match_their_constructors() {
             "{name}: {}",
             String::from_utf8_lossy(&o.stderr)
         );
-        // The energy as printed, parsed by the standard library (exactly rounded; serde_json's default
-        // float parser may be off by an ulp).
-        let stdout = String::from_utf8_lossy(&o.stdout);
-        let energy: f64 = stdout
-            .split("\"energy\": ")
-            .nth(1)
-            .and_then(|r| r.split([',', '}']).next())
-            .unwrap()
-            .trim()
-            .parse()
-            .unwrap();
+        // Exact: serde_json's `float_roundtrip` (the workspace's), and `hinge` prints the shortest round trip.
+        let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let energy = json["energy"].as_f64().unwrap();
         assert_eq!(energy, e.energy, "{name}");
         let grad: Vec<f64> = std::fs::read_to_string(out.join("gradient.txt"))
             .unwrap()
