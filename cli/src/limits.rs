@@ -92,7 +92,8 @@ pub fn disk_space(dir: &Path, bytes: u64, what: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Peak memory per vertex of `hinge run` and `hinge fit` on a generated mesh, for [`memory`]: measured
+/// Peak memory per vertex of `hinge run` and `hinge fit` on a generated mesh or a scene's mesh file, for
+/// [`memory`]: measured
 /// (`/usr/bin/time -f %M`) 14 KiB on the drape at 401×401 (160 801 vertices, 2.25 GB) and 18 KiB on
 /// `shell-drop` at level 6 (40 962 vertices), with a margin.
 pub const RUN_BYTES_PER_VERTEX: u64 = 24 * 1024;
@@ -114,9 +115,10 @@ pub fn available_memory() -> Option<u64> {
     kib.checked_mul(1024)
 }
 
-/// Checks that a mesh of `vertices` vertices (generated, or read from a scene's mesh file) fits in the memory available, at `per_vertex` bytes
-/// per vertex ([`RUN_BYTES_PER_VERTEX`], …): a size the machine cannot hold is a one-line error, not a
-/// process the system kills once it has used all memory. No check where the available memory is unknown.
+/// Checks that a mesh of `vertices` vertices (generated, or read from a scene's mesh file) fits in the
+/// memory available, at `per_vertex` bytes per vertex ([`RUN_BYTES_PER_VERTEX`], …): a size the machine
+/// cannot hold is a one-line error, not a process the system kills once it has used all memory. No check
+/// where the available memory is unknown.
 ///
 /// # Errors
 /// A one-line message with the sizes, naming `what` (the argument that asked for the mesh).
