@@ -122,7 +122,7 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         parameter: parameter.into(),
         exponent,
     };
-    let model = m.model()?;
+    let model = b.membrane;
     // The membrane parameter `young` or `thickness`: the co-rotational membrane has one stiffness,
     // proportional to both.
     let membrane = |parameter: &str| -> Link {
@@ -296,6 +296,7 @@ pub fn fit_scene_until(
         pins,
         solver,
         params,
+        membrane,
         ..
     } = b;
     let params = NewtonParams {
@@ -308,9 +309,8 @@ pub fn fit_scene_until(
     let mut x = rest.positions().to_vec();
     // The first equilibrium through the membrane continuation (as `hinge run --static`): the fit's solves
     // then start from it, a few iterations each, where a thin stiff strip solved from flat takes hundreds.
-    let (parameter, stages) =
-        crate::run::membrane_stages(scene, scene.material.model()?, rest, &mut system)
-            .map_err(|e| crate::run::solver_message(&e, names))?;
+    let (parameter, stages) = crate::run::membrane_stages(scene, membrane, rest, &mut system)
+        .map_err(|e| crate::run::solver_message(&e, names))?;
     let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
     let mut fit = Fit::new(&system, &pins, &mut newton, variables, options)
         .map_err(|e| fit_message(&e, names))?;

@@ -200,6 +200,8 @@ pub struct Built {
     /// Rest hinges at least [`STIFF_REST`] times stiffer than flat, if any (a set-up warning, and the
     /// likely cause when a step then fails).
     pub stiff_rest: Option<StiffRest>,
+    /// The membrane's model (`material.membrane`), whose stiffness a static solve's continuation scales.
+    pub membrane: MembraneModel,
 }
 
 /// A rest stiffening `ψ″(θ̄) / ψ″(0)` ([`BendingModel::rest_stiffening`]) from which the scene gets a
@@ -321,9 +323,10 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         }
     };
     let masses = lumped_masses(rest, m.density);
+    let membrane = m.model()?;
     let mut terms: Vec<Box<dyn Energy>> = vec![
         bending,
-        m.model()?
+        membrane
             .build(rest, m.young, m.poisson, m.thickness)
             .map_err(|e| e.to_string())?,
         Box::new(
@@ -402,6 +405,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         params,
         obstacles,
         stiff_rest,
+        membrane,
     })
 }
 
@@ -530,6 +534,7 @@ pub fn equilibrium_observed(
         params,
         obstacles,
         stiff_rest,
+        membrane,
         ..
     } = build(scene, rest, false)?;
     warn_stiff_rest(
@@ -549,7 +554,7 @@ pub fn equilibrium_observed(
     newton.set_observer(observer);
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
-    let (parameter, stages) = membrane_stages(scene, scene.material.model()?, rest, &mut system)
+    let (parameter, stages) = membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
     let (stats, interrupted) =
@@ -972,6 +977,7 @@ pub fn simulate_observed(
         params,
         obstacles,
         stiff_rest,
+        ..
     } = build(scene, rest, true)?;
     warn_stiff_rest(
         stiff_rest.as_ref(),
@@ -1512,8 +1518,9 @@ mod tests {
     use hinge_core::TriMesh;
 
     fn membrane_stages(scene: &Scene, rest: &TriMesh) -> Result<Vec<f64>, String> {
-        let mut system = build(scene, rest, false)?.system;
-        super::membrane_stages(scene, scene.material.model()?, rest, &mut system)
+        let built = build(scene, rest, false)?;
+        let mut system = built.system;
+        super::membrane_stages(scene, built.membrane, rest, &mut system)
             .map(|(_, s)| s)
             .map_err(|e| e.to_string())
     }
