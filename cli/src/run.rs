@@ -115,7 +115,8 @@ pub struct RunSummary {
     /// Frames simulated.
     pub frames: usize,
     /// Newton iterations, summed (with an interrupted run's abandoned frame: the work counters
-    /// `newton_iterations`, `line_search_steps`, `factorizations`, `definite_iterations` and the seconds
+    /// `newton_iterations`, `line_search_steps`, `factorizations`, `definite_iterations`,
+    /// `accelerated_iterations` and the seconds
     /// count every iteration spent, `substeps` and the norms only the frames completed).
     pub newton_iterations: usize,
     /// Line-search trials after the first (halvings and extrapolation doublings), summed.
@@ -142,6 +143,8 @@ pub struct RunSummary {
     pub factorizations: usize,
     /// Newton iterations that stepped with the definite Hessian (project on demand).
     pub definite_iterations: usize,
+    /// Newton iterations whose step was corrected by geodesic acceleration.
+    pub accelerated_iterations: usize,
     /// Accepted substeps (one per frame when no step failed).
     pub substeps: usize,
     /// The largest final ‖∇F‖ over all steps.
@@ -168,6 +171,7 @@ impl RunSummary {
         self.line_search_steps += stats.line_search_steps;
         self.factorizations += stats.factorizations;
         self.definite_iterations += stats.definite_iterations;
+        self.accelerated_iterations += stats.accelerated_iterations;
         self.linear_solve_seconds += stats.factor_seconds + stats.solve_seconds;
     }
 
@@ -394,6 +398,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         length_scale: mean_edge_length(rest),
         extrapolate: scene.solver.extrapolate,
         remember_shift: scene.solver.remember_shift,
+        geodesic_acceleration: scene.solver.geodesic_acceleration,
         ..NewtonParams::default()
     };
     let solver = linear_solver(scene);
@@ -586,6 +591,7 @@ pub fn equilibrium_observed(
         final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         factorizations: 0,
         definite_iterations: 0,
+        accelerated_iterations: 0,
         substeps: 0,
         max_final_gradient_norm: stats.gradient_norms.last().copied().unwrap_or(f64::NAN),
         smallest_substep_fraction: 1.0,
@@ -1063,6 +1069,7 @@ pub fn simulate_observed(
         final_gradient_norm: f64::NAN,
         factorizations: 0,
         definite_iterations: 0,
+        accelerated_iterations: 0,
         substeps: 0,
         max_final_gradient_norm: 0.0,
         smallest_substep_fraction: 1.0,
@@ -1275,8 +1282,9 @@ pub fn static_progress(
 }
 
 /// One line of `hinge run --trace`: `  newton I: F = …, |grad F| = … N, |dx| = … m, alpha = …, shift = …`,
-/// with `, definite` for a step of the definite Hessian ([`Globalization::ProjectOnDemand`]) and
-/// `, stage k/n` in a membrane continuation. I counts from 1 in each solve (each substep, each attempt).
+/// with `, definite` for a step of the definite Hessian ([`Globalization::ProjectOnDemand`]),
+/// `, accelerated` for a full step corrected by geodesic acceleration
+/// ([`NewtonParams::geodesic_acceleration`]) and `, stage k/n` in a membrane continuation. I counts from 1 in each solve (each substep, each attempt).
 pub fn trace_line(r: &IterationReport) -> String {
     let mut line = format!(
         "  newton {}: F = {:.10e}, |grad F| = {:.3e} N, |dx| = {:.3e} m, alpha = {}, shift = {:.3e}",
@@ -1284,6 +1292,9 @@ pub fn trace_line(r: &IterationReport) -> String {
     );
     if r.definite {
         line.push_str(", definite");
+    }
+    if r.accelerated {
+        line.push_str(", accelerated");
     }
     if let Some((k, n)) = r.stage {
         line.push_str(&format!(", stage {k}/{n}"));
@@ -1451,6 +1462,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         "line_search_steps": summary.line_search_steps,
         "factorizations": summary.factorizations,
         "definite_iterations": summary.definite_iterations,
+        "accelerated_iterations": summary.accelerated_iterations,
         "substeps": summary.substeps,
         "smallest_substep_fraction": summary.smallest_substep_fraction,
         "max_final_gradient_norm": summary.max_final_gradient_norm,

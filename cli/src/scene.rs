@@ -445,6 +445,11 @@ pub struct SolverSpec {
     /// `hinge_solver::newton::NewtonParams::remember_shift`).
     #[serde(default = "default_remember_shift")]
     pub remember_shift: bool,
+    /// Try each exact or shifted Newton step corrected by geodesic acceleration (a second-order term
+    /// from one extra gradient evaluation) before the plain line search (default true; false: the Newton
+    /// path of versions before it; see `hinge_solver::newton::NewtonParams::geodesic_acceleration`).
+    #[serde(default = "default_geodesic_acceleration")]
+    pub geodesic_acceleration: bool,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
     /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
     #[serde(default = "default_membrane_continuation")]
@@ -468,6 +473,10 @@ fn default_substeps() -> usize {
 }
 
 fn default_extrapolate() -> bool {
+    true
+}
+
+fn default_geodesic_acceleration() -> bool {
     true
 }
 
@@ -514,6 +523,7 @@ impl Default for SolverSpec {
             relative_step_tolerance: None,
             extrapolate: default_extrapolate(),
             remember_shift: default_remember_shift(),
+            geodesic_acceleration: default_geodesic_acceleration(),
             membrane_continuation: default_membrane_continuation(),
             integrator: default_integrator(),
             substeps: default_substeps(),

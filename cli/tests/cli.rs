@@ -1252,9 +1252,10 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
             &format!("gradient_tolerance = 1e-6\nmax_substep_halvings = {halvings}"),
         )
     };
-    // Four Newton iterations per attempt: frames need substeps (counted in summary.json).
+    // Three Newton iterations per attempt: frames need substeps (counted in summary.json). (Four sufficed
+    // for that before geodesic acceleration, which takes these frames in at most four.)
     let file = dir.join("tight.toml");
-    std::fs::write(&file, with(4, 5)).unwrap();
+    std::fs::write(&file, with(3, 5)).unwrap();
     let out = dir.join("tight");
     let o = hinge(&[
         "run",
@@ -1483,6 +1484,41 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
     }
     assert!(
         runs[1]["factorizations"].as_u64().unwrap() < runs[0]["factorizations"].as_u64().unwrap()
+    );
+    // `geodesic_acceleration = false`: no step is corrected, where the default corrects some; both
+    // converge every step.
+    let plain = dir.join("plain.toml");
+    std::fs::write(
+        &plain,
+        shown.replace(
+            "gradient_tolerance = 1e-6",
+            "gradient_tolerance = 1e-6\ngeodesic_acceleration = false",
+        ),
+    )
+    .unwrap();
+    let off = run_summary(
+        &dir.join("plain"),
+        &[
+            plain.to_str().unwrap(),
+            "--frames",
+            "30",
+            "--resolution",
+            "12",
+        ],
+    );
+    println!(
+        "corrected steps: without geodesic acceleration {}, with {}",
+        off["accelerated_iterations"], runs[1]["accelerated_iterations"]
+    );
+    assert!(
+        off["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
+        "{off}"
+    );
+    assert_eq!(off["accelerated_iterations"].as_u64(), Some(0), "{off}");
+    assert!(
+        runs[1]["accelerated_iterations"].as_u64().unwrap() > 0,
+        "{}",
+        runs[1]
     );
 }
 
@@ -3915,7 +3951,8 @@ fn trace_value(line: &str, key: &str) -> f64 {
 
 /// Runs `hinge run ARGS` with and without `--trace` (in `dir`) and checks the trace: a line per accepted
 /// Newton iteration, before its frame's line, numbered from 1 in each solve, as many as the frame counts,
-/// the last at the scene's tolerance, with shifted and extrapolated steps among them. Tracing changes
+/// the last at the scene's tolerance, with shifted and extrapolated steps among them, and as many
+/// `, accelerated` lines as summary.json's `accelerated_iterations` (some). Tracing changes
 /// nothing of the run (summary.json's counts and results are those of the run without it), and
 /// summary.json's per-frame counts are the frame lines' and sum to the run's.
 fn check_trace(dir: &Path, args: &[&str], frames: usize) {
@@ -3933,6 +3970,7 @@ fn check_trace(dir: &Path, args: &[&str], frames: usize) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8(o.stdout).unwrap();
     let (mut pending, mut shifted, mut extrapolated) = (Vec::<&str>::new(), 0, 0);
+    let mut accelerated = 0;
     let mut frame_lines = Vec::new();
     for line in text.lines() {
         if let Some(rest) = line.strip_prefix("  newton ") {
@@ -3940,6 +3978,7 @@ fn check_trace(dir: &Path, args: &[&str], frames: usize) {
             assert_eq!(k, pending.len() + 1, "{args:?}: {line}");
             shifted += usize::from(trace_value(line, "shift") > 0.0);
             extrapolated += usize::from(trace_value(line, "alpha") > 1.0);
+            accelerated += usize::from(line.contains(", accelerated"));
             pending.push(line);
         } else if line.starts_with("frame ") {
             frame_lines.push(line);
@@ -3965,10 +4004,17 @@ fn check_trace(dir: &Path, args: &[&str], frames: usize) {
         "max_final_gradient_norm",
         "far_end_drop",
         "max_speed",
+        "accelerated_iterations",
     ] {
         assert!(!traced[key].is_null(), "{args:?}: {key}");
         assert_eq!(traced[key], plain[key], "{args:?}: {key}");
     }
+    assert!(accelerated > 0, "{args:?}");
+    assert_eq!(
+        traced["accelerated_iterations"].as_u64(),
+        Some(accelerated as u64),
+        "{args:?}"
+    );
     assert_eq!(
         traced["min_clearance_to_sphere"], plain["min_clearance_to_sphere"],
         "{args:?}"

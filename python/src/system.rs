@@ -283,6 +283,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &NewtonStats) -> PyResult<Bound<'py, PyDi
     d.set_item("line_search_steps", s.line_search_steps)?;
     d.set_item("factorizations", s.factorizations)?;
     d.set_item("definite_iterations", s.definite_iterations)?;
+    d.set_item("accelerated_iterations", s.accelerated_iterations)?;
     d.set_item(
         "final_gradient_norm",
         s.gradient_norms.last().copied().unwrap_or(f64::NAN),
@@ -572,11 +573,13 @@ struct PyNewtonOptions<'a> {
     relative_gradient_tolerance: f64,
     relative_step_tolerance: f64,
     remember_shift: bool,
+    geodesic_acceleration: bool,
 }
 
 /// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name,
 /// [`NewtonParams::extrapolate`], the unit-free stopping tests (the step test against the rest mesh's mean
-/// edge length, as the CLI does) and [`NewtonParams::remember_shift`].
+/// edge length, as the CLI does), [`NewtonParams::remember_shift`] and
+/// [`NewtonParams::geodesic_acceleration`].
 fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParams> {
     if o.max_iterations == 0 || !(o.gradient_tolerance > 0.0 && o.gradient_tolerance.is_finite()) {
         return Err(value_error(format!(
@@ -609,18 +612,19 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
         relative_step_tolerance: o.relative_step_tolerance,
         length_scale: mean_edge_length(rest),
         remember_shift: o.remember_shift,
+        geodesic_acceleration: o.geodesic_acceleration,
         ..NewtonParams::default()
     })
 }
 
 /// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
 /// extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
-/// relative_step_tolerance=0.0, remember_shift=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices
+/// relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices
 /// held at their `X0` positions) by Newton, through softer StVK membranes first when
 /// [`hinge_solver::statics::membrane_scales`] asks for it and `membrane_continuation` is set. Returns
 /// `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
 #[pyfunction]
-#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true))]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true))]
 #[allow(clippy::too_many_arguments)]
 pub fn solve_static<'py>(
     py: Python<'py>,
@@ -634,6 +638,7 @@ pub fn solve_static<'py>(
     relative_gradient_tolerance: f64,
     relative_step_tolerance: f64,
     remember_shift: bool,
+    geodesic_acceleration: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let params = newton_params(
@@ -645,6 +650,7 @@ pub fn solve_static<'py>(
             relative_gradient_tolerance,
             relative_step_tolerance,
             remember_shift,
+            geodesic_acceleration,
         },
         &system.rest,
     )?;
@@ -770,9 +776,9 @@ impl PyStepper {
 impl PyStepper {
     /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
     /// `density`; the system's current terms and pins are copied. `globalization`, `extrapolate`, the
-    /// relative tolerances and `remember_shift` as in `solve_static`.
+    /// relative tolerances, `remember_shift` and `geodesic_acceleration` as in `solve_static`.
     #[new]
-    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true))]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -788,6 +794,7 @@ impl PyStepper {
         relative_gradient_tolerance: f64,
         relative_step_tolerance: f64,
         remember_shift: bool,
+        geodesic_acceleration: bool,
     ) -> PyResult<Self> {
         let x = system.positions(&x0)?;
         let v = match v0 {
@@ -808,6 +815,7 @@ impl PyStepper {
                 relative_gradient_tolerance,
                 relative_step_tolerance,
                 remember_shift,
+                geodesic_acceleration,
             },
             &system.rest,
         )?;
@@ -1116,6 +1124,7 @@ pub fn fit<'py>(
             relative_gradient_tolerance: 0.0,
             relative_step_tolerance: 0.0,
             remember_shift: true,
+            geodesic_acceleration: true,
         },
         &rest,
     )?;

@@ -487,7 +487,7 @@ def test_newton_globalization_and_extrapolation_switches():
     assert st["final_gradient_norm"] <= 1e-8 and "definite_iterations" in st
 
 
-def test_unit_free_stopping_tests_and_shift_memory_from_python():
+def test_unit_free_stopping_tests_shift_memory_and_acceleration_from_python():
     V, F, s, clamp = clamped_sheet(31, 1e-3, 1e5)
     X0 = V.copy()
     X0[:, 0] *= 0.85
@@ -522,6 +522,16 @@ def test_unit_free_stopping_tests_and_shift_memory_from_python():
         assert st["final_gradient_norm"] <= 1e-9
         paths[remember] = (st["newton_iterations"], st["factorizations"])
     assert paths[True] != paths[False], paths
+    # Geodesic acceleration changes the path, not the equilibrium; without it no step is corrected.
+    ends = {}
+    for accelerate in (True, False):
+        Y, st = hinge.solve_static(s2, Y0, gradient_tolerance=1e-9, geodesic_acceleration=accelerate)
+        assert st["final_gradient_norm"] <= 1e-9
+        assert (st["accelerated_iterations"] > 0) == accelerate, st["accelerated_iterations"]
+        ends[accelerate] = Y
+    assert np.abs(ends[True] - ends[False]).max() <= 1e-3 * edge
+    t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, gradient_tolerance=1e-9, geodesic_acceleration=False)
+    assert all(st["accelerated_iterations"] == 0 for _, st in [t.step() for _ in range(2)])
     # The stepper takes the same keyword arguments; without the shift memory it repeats itself exactly.
     runs = []
     for _ in range(2):
@@ -534,7 +544,8 @@ def test_unit_free_stopping_tests_and_shift_memory_from_python():
     X, st = t.step()
     assert st["final_gradient_norm"] <= 1e-3 * st["gradient_norms"][0]
     for bad in ({"relative_gradient_tolerance": -1.0}, {"relative_step_tolerance": float("nan")},
-                {"relative_gradient_tolerance": "1e-3"}, {"remember_shift": 1}):
+                {"relative_gradient_tolerance": "1e-3"}, {"remember_shift": 1},
+                {"geodesic_acceleration": "yes"}):
         with pytest.raises(ValueError):
             hinge.solve_static(s, X0, **bad)
         with pytest.raises(ValueError):

@@ -439,10 +439,11 @@ class System:
 
 def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
                  extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
-                 relative_step_tolerance=0.0, remember_shift=True):
+                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
     system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
-    ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``final_gradient_norm``,
+    ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``accelerated_iterations``,
+    ``final_gradient_norm``,
     ``gradient_norms``). ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
     does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
     ``extrapolate`` tries longer steps after a full shifted or definite one (as the scene keys
@@ -457,14 +458,18 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     an exact Newton step that moved no vertex farther than ``relative_step_tolerance`` times the rest mesh's
     mean edge length. ``remember_shift`` (the scene key ``solver.remember_shift``) starts each diagonal-shift
     ladder near the last shift that factored, in this solve or (for a stepper) an earlier step; ``False``
-    makes every solve independent of the ones before it."""
+    makes every solve independent of the ones before it. ``geodesic_acceleration`` (the scene key
+    ``solver.geodesic_acceleration``) first tries each exact or shifted Newton step corrected by a
+    second-order term (one extra gradient evaluation and triangular solve); ``False`` gives plain Newton
+    steps."""
     return _hinge.solve_static(system._s, system._x(X0), _count("max_iterations", max_iterations),
                                _number("gradient_tolerance", gradient_tolerance),
                                _globalization(globalization), _flag("extrapolate", extrapolate),
                                _flag("membrane_continuation", membrane_continuation),
                                _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
                                _tolerance("relative_step_tolerance", relative_step_tolerance),
-                               _flag("remember_shift", remember_shift))
+                               _flag("remember_shift", remember_shift),
+                               _flag("geodesic_acceleration", geodesic_acceleration))
 
 
 def _globalization(name):
@@ -522,13 +527,14 @@ class ImplicitEuler:
     """Implicit Euler on a system: ``stepper = hinge.ImplicitEuler(system, X0, dt, density)``, then
     ``X, stats = stepper.step()`` per frame (a failing step is retried in substeps; a frame that cannot be
     taken raises ``ValueError`` and leaves positions, velocities and time as they were). ``globalization``,
-    ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance`` and ``remember_shift`` as in
+    ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance``, ``remember_shift`` and
+    ``geodesic_acceleration`` as in
     ``solve_static`` (the relative gradient test is against the gradient at the step's start, the inertial
     prediction)."""
 
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
-                 relative_step_tolerance=0.0, remember_shift=True):
+                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), _number("dt", dt), _number("density", density), V0,
                                        _count("max_iterations", max_iterations),
@@ -536,7 +542,8 @@ class ImplicitEuler:
                                        _globalization(globalization), _flag("extrapolate", extrapolate),
                                        _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
                                        _tolerance("relative_step_tolerance", relative_step_tolerance),
-                                       _flag("remember_shift", remember_shift))
+                                       _flag("remember_shift", remember_shift),
+                                       _flag("geodesic_acceleration", geodesic_acceleration))
 
     def step(self):
         return self._t.step()
