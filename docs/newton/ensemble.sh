@@ -8,7 +8,8 @@
 #
 #   cargo build --release -p hinge-cli
 #   target/release/hinge scenes show drape > /tmp/drape.toml
-#   docs/newton/ensemble.sh /tmp/drape.toml            # 742/1180 749/1169 757/1203 759/1187 771/1213
+#   docs/newton/ensemble.sh /tmp/drape.toml            # 612/1030 613/1039 614/1030 615/1019 617/1019
+#   (742/1180 … 771/1213 with `geodesic_acceleration = false` under [solver])
 #
 # The scene must have a line `origin = [X, Y, Z]` under [mesh] (the built-in drape and anisotropic-drape do).
 set -euo pipefail

@@ -999,6 +999,7 @@ pub fn run_scene<'py>(
     d.set_item("factorizations", summary.factorizations)?;
     d.set_item("line_search_steps", summary.line_search_steps)?;
     d.set_item("substeps", summary.substeps)?;
+    d.set_item("accelerated_iterations", summary.accelerated_iterations)?;
     d.set_item("max_final_gradient_norm", summary.max_final_gradient_norm)?;
     d.set_item("total_seconds", summary.total_seconds)?;
     d.set_item("min_clearance", summary.min_clearance)?;

@@ -895,8 +895,11 @@ def check_trace(scene, frames):
     assert "trace" not in plain
     # Tracing changes nothing of the run.
     assert np.array_equal(X, Xt)
-    for key in ["newton_iterations", "factorizations", "line_search_steps", "max_final_gradient_norm"]:
+    for key in ["newton_iterations", "factorizations", "line_search_steps", "max_final_gradient_norm",
+                "accelerated_iterations"]:
         assert s[key] == plain[key], key
+    # Geodesic acceleration (on by default) corrects some of the steps, never more than there are.
+    assert 0 < s["accelerated_iterations"] <= s["newton_iterations"]
     its, facts, subs = s["frame_newton_iterations"], s["frame_factorizations"], s["frame_substeps"]
     assert len(its) == len(facts) == len(subs) == frames
     assert sum(its) == s["newton_iterations"] and sum(facts) == s["factorizations"]

@@ -65,12 +65,13 @@
 //! measured worse (drape 611–620 iterations against 570–577). Every corrected step counts in
 //! [`NewtonStats::accelerated_iterations`].
 //!
-//! Measured over `docs/newton/ensemble.sh`'s five starts (`iterations / factorizations`, per-frame
-//! median / max), without → with the correction: drape 742–771 (median 757) → 609–617 (median
-//! 613 / 1 030); with project on demand 677–681 → 570–577 (574 / 698); `shell-drop` 1 085–1 424
-//! (median 1 192 / 2 802, per-frame median 14, max 67) → 981–1 207 (median 1 046 / 2 606, 11, 62); with
-//! project on demand 1 072–1 239 (1 130 / 1 505) → 922–1 140 (994 / 1 371). The figures for the
-//! correction's constants are at [`ACCELERATION_STEP`] and [`ACCELERATION_RATIO`].
+//! Measured over `docs/newton/ensemble.sh`'s five starts (`iterations / factorizations` of the median
+//! run), without → with the correction: drape 742–771 (757 / 1 203) → 612–617 (614 / 1 030); with
+//! project on demand 677–681 → 570–577 (574 / 698). `shell-drop`, whose runs spread far more:
+//! 1 085–1 424 (1 192 / 2 802; per-frame medians 10.5–15.5, maxima 54–74) → 1 059–1 324 (1 217 / 3 021;
+//! 8.5–11.5, 58–92); with project on demand 1 072–1 239 (1 130 / 1 505) → 984–1 258 (1 077 / 1 452). The
+//! figures for the correction's constants are at [`ACCELERATION_STEP`], [`ACCELERATION_RATIO`] and
+//! [`ACCELERATION_RESOLUTION`].
 //!
 //! # Step bounds
 //! An objective may bound the move of a step ([`Objective::max_step`]: a barrier contact's continuous
@@ -1170,9 +1171,9 @@ impl Newton {
     /// acceleration): `(H + σ) a = −∇³F[d, d]` with the matrix `self.solver` holds (the exact Hessian plus
     /// the shift `shift`), the third-derivative term from the gradient at `x + h d`:
     /// `∇³F[d, d] ≈ 2/h² (∇F(x + h d) − ∇F(x) − h H d)`, where `H d = −∇F(x) − σ d` by construction of `d`.
-    /// `w.a` stays empty when the move `h d` is within the positions' rounding ([`ACCELERATION_RESOLUTION`]),
-    /// when that point cannot be evaluated or lies beyond the objective's step bound,
-    /// or when the acceleration is not small against `d` (`‖a‖ > ACCELERATION_RATIO ‖d‖`: the local
+    /// `w.a` stays empty when the move `h d` is within the positions' rounding
+    /// ([`ACCELERATION_RESOLUTION`]), when that point cannot be evaluated or lies beyond the objective's
+    /// step bound, or when the acceleration is not small against `d` (`‖a‖ > ACCELERATION_RATIO ‖d‖`: the local
     /// quadratic-plus-cubic model does not hold there). One gradient evaluation and one triangular solve.
     fn accelerate<O: Objective>(&mut self, s: &mut Solve<'_, O>, w: &mut Work, shift: f64) {
         let h = ACCELERATION_STEP;
@@ -1291,24 +1292,27 @@ pub const ROUNDING_BAND: f64 = 128.0;
 const LADDER_HINT: f64 = 0.25;
 
 /// The finite-difference step `h` (a fraction of the Newton direction) of the geodesic acceleration's
-/// third-derivative term ([`Newton::accelerate`]): Transtrum & Sethna's choice. Measured on the drape over
-/// `docs/newton/ensemble.sh`'s five starts: h = 0.1 gives 611–615 iterations, 0.2 and 0.05 are bimodal
-/// (637–1 047, 732–985), 0.03 gives 747–983 (module documentation, Geodesic acceleration).
-const ACCELERATION_STEP: f64 = 0.1;
+/// third-derivative term ([`NewtonParams::geodesic_acceleration`]): Transtrum & Sethna's choice.
+/// Measured on the drape over `docs/newton/ensemble.sh`'s five starts (a prototype that searched along
+/// the curve `α d + α²/2 a`, without [`ACCELERATION_RESOLUTION`]): h = 0.1 gives 611–615 iterations, 0.2 and 0.05 are bimodal
+/// (637–1 047, 732–985), 0.03 gives 747–983; h = 1 (the gradient at the full step) 583–745; a central
+/// difference at 0.1 / 0.3, two extra gradients, 636–750 / 620–633 (module documentation, Geodesic
+/// acceleration).
+pub const ACCELERATION_STEP: f64 = 0.1;
 
 /// The largest ‖a‖ / ‖d‖ of a geodesic acceleration that is tried (Transtrum & Sethna bound the ratio
-/// of the step's second-order to first-order part; measured on the drape's five starts: 0.75 → 611–615,
-/// 1.0 → 603–620, 0.5 → 710–1 016, 1.5 → 1 071 on one start).
-const ACCELERATION_RATIO: f64 = 0.75;
+/// of the step's second-order to first-order part; measured with the same prototype on the drape's five
+/// starts: 0.75 → 611–615, 1.0 → 603–620, 0.5 → 710–1 016, 1.5 → 1 071 on one start).
+pub const ACCELERATION_RATIO: f64 = 0.75;
 
 /// The smallest move of the geodesic acceleration's difference quotient, `h ‖d‖_∞`, relative to the
-/// largest free coordinate ([`Newton::accelerate`]). The positions' rounding `ε |x|` perturbs the
-/// quotient's second difference by about `ε / 1e-12 ≈ 2e-4` of its size at this bound (the third
+/// largest free coordinate ([`NewtonParams::geodesic_acceleration`]). The positions' rounding `ε |x|`
+/// perturbs the quotient's second difference by about `ε / 1e-12 ≈ 2e-4` of its size at this bound (the third
 /// derivative taken at the scale of the coordinates). Without a bound, corrections of rounding noise
 /// stopped the damped `beam5` run (frame 122, a step "stuck" at ‖∇F‖ = 8e-6 N) and a stiff static strip
 /// at 3.4e-8 N instead of below 1e-8 N; drape over the five starts: ε^(1/3) 632–640 iterations, 1e-6
 /// 612–617, 1e-7 610–615 (no bound 609–617).
-const ACCELERATION_RESOLUTION: f64 = 1e-6;
+pub const ACCELERATION_RESOLUTION: f64 = 1e-6;
 
 /// Accepted steps in a row that may stay shorter than [`STALL_STEP`] of the Newton direction (or within F's
 /// rounding, module documentation, Rounding) without
