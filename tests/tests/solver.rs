@@ -1211,15 +1211,31 @@ fn thin_strip_at_equilibrium() -> (System, Pins, Vec<Vector3<f64>>) {
     (sys, pins, x)
 }
 
-/// A user's objective whose energy carries noise above the old rounding allowance but whose gradient and
-/// Hessian are exact: `F = 1 + Σ_dofs (t²/2 + t⁴/4 − b t) + η(x)`, `|η| ≤ 400ε` a deterministic hash of
-/// the positions' bits (a sum of many rounded terms looks like that to the line search).
-struct NoisyQuartic {
+/// A user's objective made of one term per dof: `F = c + Σ_d φ(t_d, b_d) + η(x)`, where `term(t, b)`
+/// gives φ, φ′ and φ″ and `noise(x)` the part η of the energy that has no derivatives (a diagonal
+/// Hessian; exact gradient and Hessian).
+struct Separable {
     pattern: hinge_core::pattern::SymmetricPattern,
     b: Vec<f64>,
+    constant: f64,
+    term: fn(f64, f64) -> [f64; 3],
+    noise: fn(&[Vector3<f64>]) -> f64,
 }
 
-impl hinge_solver::newton::Objective for NoisyQuartic {
+impl Separable {
+    fn new(n: usize, b: Vec<f64>, constant: f64, term: fn(f64, f64) -> [f64; 3]) -> Self {
+        let pattern = hinge_core::pattern::SymmetricPattern::new(n, std::iter::empty()).unwrap();
+        Self {
+            pattern,
+            b,
+            constant,
+            term,
+            noise: |_| 0.0,
+        }
+    }
+}
+
+impl hinge_solver::newton::Objective for Separable {
     fn n_vertices(&self) -> usize {
         self.b.len() / 3
     }
@@ -1232,21 +1248,13 @@ impl hinge_solver::newton::Objective for NoisyQuartic {
         request: Request,
         out: &mut hinge_core::energy::SystemEvaluation,
     ) -> Result<(), hinge_core::EvalError> {
-        let t = |d: usize| x[d / 3][d % 3];
-        let hash = x.iter().flat_map(|p| p.iter()).fold(0_u64, |h, v| {
-            (h ^ v.to_bits()).wrapping_mul(0x9e37_79b9_7f4a_7c15)
-        });
-        let eta = 400.0 * f64::EPSILON * ((hash >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0);
-        let energy = 1.0
-            + (0..self.b.len())
-                .map(|d| 0.5 * t(d).powi(2) + 0.25 * t(d).powi(4) - self.b[d] * t(d))
-                .sum::<f64>()
-            + eta;
+        let terms: Vec<[f64; 3]> = (0..self.b.len())
+            .map(|d| (self.term)(x[d / 3][d % 3], self.b[d]))
+            .collect();
+        let energy = self.constant + terms.iter().map(|t| t[0]).sum::<f64>() + (self.noise)(x);
         out.energy = energy;
         out.terms = vec![energy];
-        out.gradient = (0..self.b.len())
-            .map(|d| t(d) + t(d).powi(3) - self.b[d])
-            .collect();
+        out.gradient = terms.iter().map(|t| t[1]).collect();
         if request.hessian {
             out.hessian = vec![0.0; self.pattern.nnz()];
             for v in 0..self.n_vertices() {
@@ -1254,7 +1262,7 @@ impl hinge_solver::newton::Objective for NoisyQuartic {
                 let block = self.pattern.blocks()[slot];
                 for c in 0..3 {
                     // The block's column c stores rows c, c+1, … from its offset: (c, c) first.
-                    out.hessian[block.offset[c] as usize] = 1.0 + 3.0 * t(3 * v + c).powi(2);
+                    out.hessian[block.offset[c] as usize] = terms[3 * v + c][2];
                 }
             }
         }
@@ -1262,7 +1270,27 @@ impl hinge_solver::newton::Objective for NoisyQuartic {
     }
 }
 
-/// Newton on [`NoisyQuartic`] (exact derivatives, an energy whose values are noisy at 400ε, fifty times
+/// A user's objective whose energy carries noise above the old rounding allowance but whose gradient and
+/// Hessian are exact: `F = 1 + Σ_dofs (t²/2 + t⁴/4 − b t) + η(x)`, `|η| ≤ 400ε` a deterministic hash of
+/// the positions' bits (a sum of many rounded terms looks like that to the line search).
+fn noisy_quartic(n: usize, b: Vec<f64>) -> Separable {
+    let mut objective = Separable::new(n, b, 1.0, |t, b| {
+        [
+            0.5 * t.powi(2) + 0.25 * t.powi(4) - b * t,
+            t + t.powi(3) - b,
+            1.0 + 3.0 * t.powi(2),
+        ]
+    });
+    objective.noise = |x| {
+        let hash = x.iter().flat_map(|p| p.iter()).fold(0_u64, |h, v| {
+            (h ^ v.to_bits()).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        });
+        400.0 * f64::EPSILON * ((hash >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0)
+    };
+    objective
+}
+
+/// Newton on [`noisy_quartic`] (exact derivatives, an energy whose values are noisy at 400ε, fifty times
 /// the rounding allowance 8ε|F|) reaches a gradient of 1e-13 in a few iterations, at the solution found
 /// independently: near it the full Newton steps change F by less than its noise, and a line search that
 /// believed F's values would halve them against noise. (The line search before the slope test passes this
@@ -1274,8 +1302,7 @@ fn newton_converges_on_an_objective_whose_energy_is_noisy_but_whose_gradient_is_
     let b: Vec<f64> = (0..3 * n)
         .map(|d| ((d * 7 % 11) as f64 - 5.0) * 0.3)
         .collect();
-    let pattern = hinge_core::pattern::SymmetricPattern::new(n, std::iter::empty()).unwrap();
-    let mut objective = NoisyQuartic { pattern, b };
+    let mut objective = noisy_quartic(n, b);
     let pins = Pins::new(n, Vec::new()).unwrap();
     let mut newton = Newton::new(
         &objective,
@@ -2345,46 +2372,11 @@ fn a_continuation_that_fails_after_a_shifted_stage_leaves_the_solver_as_it_was()
 
 /// A separable convex objective with a strong third derivative: `F = Σ_dofs (eᵗ − b t)`, minimum at
 /// `t = ln b`; per dof `∇F = eᵗ − b`, `H = eᵗ`, `∇³F = eᵗ`.
-struct ExpSum {
-    pattern: hinge_core::pattern::SymmetricPattern,
-    b: Vec<f64>,
+fn exp_sum(n: usize, b: Vec<f64>) -> Separable {
+    Separable::new(n, b, 0.0, |t, b| [t.exp() - b * t, t.exp() - b, t.exp()])
 }
 
-impl hinge_solver::newton::Objective for ExpSum {
-    fn n_vertices(&self) -> usize {
-        self.b.len() / 3
-    }
-    fn pattern(&self) -> &hinge_core::pattern::SymmetricPattern {
-        &self.pattern
-    }
-    fn evaluate(
-        &mut self,
-        x: &[Vector3<f64>],
-        request: Request,
-        out: &mut hinge_core::energy::SystemEvaluation,
-    ) -> Result<(), hinge_core::EvalError> {
-        let t = |d: usize| x[d / 3][d % 3];
-        let energy = (0..self.b.len())
-            .map(|d| t(d).exp() - self.b[d] * t(d))
-            .sum::<f64>();
-        out.energy = energy;
-        out.terms = vec![energy];
-        out.gradient = (0..self.b.len()).map(|d| t(d).exp() - self.b[d]).collect();
-        if request.hessian {
-            out.hessian = vec![0.0; self.pattern.nnz()];
-            for v in 0..self.n_vertices() {
-                let slot = self.pattern.find(v, v).expect("a diagonal block");
-                let block = self.pattern.blocks()[slot];
-                for c in 0..3 {
-                    out.hessian[block.offset[c] as usize] = t(3 * v + c).exp();
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Geodesic acceleration ([`NewtonParams::geodesic_acceleration`]) on [`ExpSum`] from `t = 0`: the first
+/// Geodesic acceleration ([`NewtonParams::geodesic_acceleration`]) on [`exp_sum`] from `t = 0`: the first
 /// step is the Newton step `d = b − 1` corrected by `a/2`, with `a` the finite-difference formula of
 /// `Newton::accelerate` in closed form, `a = −2/h² (e^{hd} − 1 − hd)` per dof (h = 0.1), which tends to
 /// Chebyshev's exact `−d²` as h → 0: the reported step length matches the closed form to rounding, and
@@ -2416,11 +2408,7 @@ fn geodesic_acceleration_corrects_the_newton_step_by_the_third_derivative() {
     };
     let mut counts = Vec::new();
     for accelerate in [true, false] {
-        let pattern = hinge_core::pattern::SymmetricPattern::new(n, std::iter::empty()).unwrap();
-        let mut objective = ExpSum {
-            pattern,
-            b: b.clone(),
-        };
+        let mut objective = exp_sum(n, b.clone());
         let pins = Pins::new(n, Vec::new()).unwrap();
         let params = NewtonParams {
             geodesic_acceleration: accelerate,
