@@ -895,8 +895,11 @@ type Frames = Vec<Vec<Vector3<f64>>>;
 /// `beam1`, …) or a TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh,
 /// the positions of every frame as a (frames, n, 3) array, and the run's counts, per frame too
 /// (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`). With `trace`, `summary["trace"]`
-/// is a (k, 7) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
-/// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift.
+/// is a (k, 9) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
+/// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift, definite (1 for a step with the
+/// definite Hessian of `globalization = "project-on-demand"`, else 0) and accelerated (1 for a step
+/// corrected by geodesic acceleration, else 0); the two flags' column sums are the summary's
+/// `definite_iterations` and `accelerated_iterations`.
 #[pyfunction]
 #[pyo3(signature = (scene, frames=None, trace=false))]
 #[allow(clippy::type_complexity)]
@@ -928,7 +931,7 @@ pub fn run_scene<'py>(
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
     // The trace's rows, and the frame the observer's iterations belong to (the frames done so far).
-    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 7]>::new()));
+    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 9]>::new()));
     let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let observer: Option<hinge_solver::newton::Observer> = trace.then(|| {
         let (rows, frame) = (std::sync::Arc::clone(&rows), std::sync::Arc::clone(&frame));
@@ -943,6 +946,8 @@ pub fn run_scene<'py>(
                     r.step_norm,
                     r.step_length,
                     r.shift,
+                    f64::from(u8::from(r.definite)),
+                    f64::from(u8::from(r.accelerated)),
                 ]);
             }
         }) as hinge_solver::newton::Observer
@@ -999,6 +1004,7 @@ pub fn run_scene<'py>(
     d.set_item("factorizations", summary.factorizations)?;
     d.set_item("line_search_steps", summary.line_search_steps)?;
     d.set_item("substeps", summary.substeps)?;
+    d.set_item("definite_iterations", summary.definite_iterations)?;
     d.set_item("accelerated_iterations", summary.accelerated_iterations)?;
     d.set_item("max_final_gradient_norm", summary.max_final_gradient_norm)?;
     d.set_item("total_seconds", summary.total_seconds)?;
@@ -1016,7 +1022,7 @@ pub fn run_scene<'py>(
         d.set_item(
             "trace",
             flat.into_pyarray(py)
-                .reshape([count, 7])
+                .reshape([count, 9])
                 .map_err(value_error)?,
         )?;
     }

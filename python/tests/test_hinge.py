@@ -896,7 +896,7 @@ def check_trace(scene, frames):
     # Tracing changes nothing of the run.
     assert np.array_equal(X, Xt)
     for key in ["newton_iterations", "factorizations", "line_search_steps", "max_final_gradient_norm",
-                "accelerated_iterations"]:
+                "accelerated_iterations", "definite_iterations"]:
         assert s[key] == plain[key], key
     # Geodesic acceleration (on by default) corrects some of the steps, never more than there are.
     assert 0 < s["accelerated_iterations"] <= s["newton_iterations"]
@@ -905,23 +905,33 @@ def check_trace(scene, frames):
     assert sum(its) == s["newton_iterations"] and sum(facts) == s["factorizations"]
     assert sum(subs) == s["substeps"] and all(f >= i for i, f in zip(its, facts))
     t = s["trace"]
-    assert t.shape == (s["newton_iterations"], 7)
+    assert t.shape == (s["newton_iterations"], 9)
+    # The flags are 0 or 1, and each column adds up to the summary's count.
+    assert set(np.unique(t[:, 7:])) <= {0.0, 1.0}
+    assert t[:, 7].sum() == s["definite_iterations"]
+    assert t[:, 8].sum() == s["accelerated_iterations"]
     for k in range(frames):
         rows = t[t[:, 0] == k]
         assert len(rows) == its[k], k
         # One solve per frame here (no substeps): iterations 1, 2, …, and the last at the tolerance.
         assert list(rows[:, 1]) == list(range(1, its[k] + 1)), k
         assert rows[-1, 3] <= 1e-6, k
-    # Shifted and extrapolated steps are in it.
-    assert (t[:, 6] > 0).any() and (t[:, 5] > 1).any()
+    # Extrapolated steps are in it.
+    assert (t[:, 5] > 1).any()
+    return t
 
 
 def test_run_scene_counts_per_frame_and_traces_every_iteration(tmp_path):
-    # A sheet over a sphere, and a closed shell collapsing on a plane.
-    check_trace("drape", 22)
+    # A sheet over a sphere, and a closed shell collapsing on a plane: shifted steps, none definite.
     shell = tmp_path / "shell.toml"
     shell.write_text(SMALL_SHELL_DROP)
-    check_trace(str(shell), 30)
+    for t in (check_trace("drape", 22), check_trace(str(shell), 30)):
+        assert (t[:, 6] > 0).any() and not t[:, 7].any()
+    # Project on demand marks its definite steps, and they are unshifted.
+    pod = tmp_path / "pod.toml"
+    pod.write_text(SMALL_SHELL_DROP.replace("[solver]", '[solver]\nglobalization = "project-on-demand"'))
+    t = check_trace(str(pod), 30)
+    assert t[:, 7].any() and (t[t[:, 7] == 1, 6] == 0).all()
     with pytest.raises(ValueError, match="trace"):
         hinge.run_scene("drape", frames=1, trace="yes")
 
