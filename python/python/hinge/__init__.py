@@ -565,9 +565,12 @@ def run_scene(scene, frames=None, trace=False):
     """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
     ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
     (frames, n, 3) array, and the run's counts (a dict; per frame in ``frame_newton_iterations``,
-    ``frame_factorizations``, ``frame_substeps``). With ``trace=True``, ``summary["trace"]`` is a (k, 7)
+    ``frame_factorizations``, ``frame_substeps``). With ``trace=True``, ``summary["trace"]`` is a (k, 9)
     array with a row per accepted Newton iteration, as ``hinge run --trace`` prints them: frame (from 0),
-    iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α (the line search's step length), shift."""
+    iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α (the line search's step length), shift, definite
+    (1 for a step with the definite Hessian of ``globalization = "project-on-demand"``, else 0) and
+    accelerated (1 for a step corrected by geodesic acceleration, else 0); the flag columns add up to the
+    summary's ``definite_iterations`` and ``accelerated_iterations``."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
     if frames is not None:
