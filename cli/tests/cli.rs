@@ -22,10 +22,34 @@ fn one_line_failure(args: &[&str]) -> String {
     err
 }
 
-fn tmp(name: &str) -> PathBuf {
+/// A scratch directory under the system's temporary directory, removed when dropped (also when the test
+/// fails).
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        // Tests that remove it themselves (checking that they can) leave nothing to remove.
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+fn tmp(name: &str) -> Scratch {
     let d = std::env::temp_dir().join(format!("hinge-cli-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
-    d
+    Scratch(d)
 }
 
 /// Writes `dir/file`: built-in scene `scene` (`hinge scenes show`) with each `(from, to)` of `edits`
@@ -3901,7 +3925,7 @@ fn every_closed_mesh_of_the_shells_script_sets_up_and_runs() {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/shells/closed_meshes.py");
     let made = Command::new("python3")
         .arg(&script)
-        .arg(&dir)
+        .arg(&*dir)
         .env("HINGE", env!("CARGO_BIN_EXE_hinge"))
         .output()
         .unwrap();
