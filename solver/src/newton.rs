@@ -796,8 +796,10 @@ impl Newton {
         let g0 = norm(&w.g);
         s.stats.gradient_norms.push(g0);
         let mut shift = 0.0_f64;
-        // Stall detection (Stopping): the smallest gradient norm so far, and the short steps since.
-        let (mut best, mut stalled) = (g0, 0);
+        let mut stall = Stall {
+            best: g0,
+            short_steps: 0,
+        };
         for it in 0..p.max_iterations {
             if p.converged(norm(&w.g), g0, None) {
                 return Ok(());
@@ -816,26 +818,8 @@ impl Newton {
             let mut damping = 0.0_f64;
             let mut retries = 0;
             let (alpha, accepted) = loop {
-                let factored = self.factor(s, &w.cur, definite, damping, &mut shift)?;
+                let factored = self.direction(s, w, definite, damping, &mut shift)?;
                 definite = factored.definite;
-                w.d.clear();
-                w.d.extend(w.g.iter().map(|v| -v));
-                let t = Instant::now();
-                let r = self.solver.solve(&mut w.d);
-                s.stats.solve_seconds += t.elapsed().as_secs_f64();
-                r.map_err(|source| SolverError::Linear {
-                    source,
-                    stats: Box::new(s.stats.clone()),
-                })?;
-                if !(dot(&w.g, &w.d) < 0.0) {
-                    // Not a descent direction (possible with an indefinite backend): fall back to −g.
-                    w.d.clear();
-                    w.d.extend(w.g.iter().map(|v| -v));
-                }
-                w.a.clear();
-                if p.geodesic_acceleration && !definite {
-                    self.accelerate(s, w, shift);
-                }
                 let expand = p.extrapolate && (shift > 0.0 || definite);
                 let (alpha, accepted) = self.line_search(s, w, f, noise, expand);
                 if accepted.is_some() || retries >= p.damped_retries {
@@ -859,18 +843,7 @@ impl Newton {
             if accelerated {
                 s.stats.accelerated_iterations += 1;
             }
-            // What the step tests may trust (module documentation, Stopping): a full step of the exact,
-            // unshifted Newton system, or an exact Newton direction whose predicted decrease is below F's
-            // rounding. A shifted or definite direction's predicted decrease is small because of its shift
-            // (a triangle collapsing on a public mesh, `spot`, drove the shift to 5e12 and ended a step on
-            // a 6e-15 m step with ‖∇F‖ = 4e3 N before this rule asked for the exact direction).
-            let exact_direction = !definite && shift == 0.0;
-            let newton_step = exact_direction && alpha == 1.0;
-            let predicted = dot(&w.g, &w.d).abs();
-            let at_rounding_floor = exact_direction && predicted <= noise;
-            // Only the exact Newton direction's predicted decrease measures how far F can still fall: a
-            // shifted or damped one is short because of the shift.
-            let in_rounding_band = newton_step && predicted <= ROUNDING_BAND * noise;
+            let tests = StepTests::new(definite, shift, alpha, dot(&w.g, &w.d).abs(), noise);
             let Some(acceptance) = accepted else {
                 return Err(SolverError::LineSearch {
                     stats: Box::new(s.stats.clone()),
@@ -901,25 +874,12 @@ impl Newton {
                     stage: self.stage,
                 });
             }
-            let step_test = (newton_step || at_rounding_floor).then_some((step, largest));
+            let step_test = tests.trusted().then_some((step, largest));
             if p.single_iteration || p.converged(gn, g0, step_test) {
                 return Ok(());
             }
-            // A step of any direction predicted to change F by less than its rounding makes no
-            // measurable progress either (a shifted step that Armijo's test accepts because F did not
-            // change at all).
-            let below_rounding = alpha * predicted <= noise;
-            let short = alpha < STALL_STEP
-                || acceptance == Acceptance::WithinRounding
-                || in_rounding_band
-                || below_rounding;
-            stalled = if short && gn > 0.9 * best {
-                stalled + 1
-            } else {
-                0
-            };
-            best = best.min(gn);
-            if stalled >= STALL_ITERATIONS {
+            let short = tests.short(acceptance);
+            if stall.stalled(short, gn) {
                 return Err(SolverError::Stalled {
                     stats: Box::new(s.stats.clone()),
                 });
@@ -928,6 +888,40 @@ impl Newton {
         Err(SolverError::NotConverged {
             stats: Box::new(s.stats.clone()),
         })
+    }
+
+    /// The search direction `w.d` at `w.cur` (and its geodesic acceleration `w.a`, if it gets one): factors
+    /// the Hessian in `self.values` ([`Newton::factor`]), solves `(H + σ) d = −∇F`, falls back to `−∇F` if
+    /// that is not a descent direction, and corrects exact and shifted directions
+    /// ([`NewtonParams::geodesic_acceleration`]). Returns what was factored.
+    fn direction<O: Objective>(
+        &mut self,
+        s: &mut Solve<'_, O>,
+        w: &mut Work,
+        definite: bool,
+        damping: f64,
+        shift: &mut f64,
+    ) -> Result<Factored, SolverError> {
+        let factored = self.factor(s, &w.cur, definite, damping, shift)?;
+        w.d.clear();
+        w.d.extend(w.g.iter().map(|v| -v));
+        let t = Instant::now();
+        let r = self.solver.solve(&mut w.d);
+        s.stats.solve_seconds += t.elapsed().as_secs_f64();
+        r.map_err(|source| SolverError::Linear {
+            source,
+            stats: Box::new(s.stats.clone()),
+        })?;
+        if !(dot(&w.g, &w.d) < 0.0) {
+            // Not a descent direction (possible with an indefinite backend): fall back to −g.
+            w.d.clear();
+            w.d.extend(w.g.iter().map(|v| -v));
+        }
+        w.a.clear();
+        if s.params.geodesic_acceleration && !factored.definite {
+            self.accelerate(s, w, *shift);
+        }
+        Ok(factored)
     }
 
     /// The gradient of F over the free dofs (reduced order) into `g`.
@@ -1280,6 +1274,80 @@ enum Acceptance {
     /// F's change is within its rounding (module documentation, Rounding): accepted on F's rounding
     /// allowance or on the slope test. Such steps count towards [`STALL_ITERATIONS`].
     WithinRounding,
+}
+
+/// What the stopping tests may conclude from an accepted step (module documentation, Stopping).
+#[derive(Debug, Clone, Copy)]
+struct StepTests {
+    /// A full step along the direction of the exact, unshifted Newton system.
+    newton_step: bool,
+    /// The exact direction's predicted decrease `|∇F · d|` is below F's rounding.
+    at_rounding_floor: bool,
+    /// A full Newton step predicted to change F by less than [`ROUNDING_BAND`] rounding allowances.
+    in_rounding_band: bool,
+    /// The step `alpha · d` was predicted to change F by less than its rounding.
+    below_rounding: bool,
+    /// The step length.
+    alpha: f64,
+}
+
+impl StepTests {
+    /// The tests of a step of length `alpha` along a direction factored with `shift` (or the definite
+    /// Hessian), whose predicted decrease is `predicted` = |∇F · d|; `noise` is F's rounding allowance.
+    fn new(definite: bool, shift: f64, alpha: f64, predicted: f64, noise: f64) -> Self {
+        let exact_direction = !definite && shift == 0.0;
+        let newton_step = exact_direction && alpha == 1.0;
+        Self {
+            newton_step,
+            // Only the exact Newton direction's predicted decrease measures how far F can still fall: a
+            // shifted or damped one is short because of the shift.
+            at_rounding_floor: exact_direction && predicted <= noise,
+            in_rounding_band: newton_step && predicted <= ROUNDING_BAND * noise,
+            below_rounding: alpha * predicted <= noise,
+            alpha,
+        }
+    }
+
+    /// Whether the step tests (relative step, mesh-size step) may judge convergence by this step: a full
+    /// step of the exact Newton system, or an exact Newton direction whose predicted decrease is below F's
+    /// rounding. A shifted or definite direction's predicted decrease is small because of its shift (a
+    /// triangle collapsing on a public mesh, `spot`, drove the shift to 5e12 and ended a step on a
+    /// 6e-15 m step with ‖∇F‖ = 4e3 N before this rule asked for the exact direction).
+    fn trusted(&self) -> bool {
+        self.newton_step || self.at_rounding_floor
+    }
+
+    /// Whether the step counts towards [`STALL_ITERATIONS`]: shorter than [`STALL_STEP`], accepted within
+    /// F's rounding, a Newton step within the rounding band, or any step predicted to change F by less
+    /// than its rounding (a shifted step that Armijo's test accepts because F did not change at all).
+    fn short(&self, acceptance: Acceptance) -> bool {
+        self.alpha < STALL_STEP
+            || acceptance == Acceptance::WithinRounding
+            || self.in_rounding_band
+            || self.below_rounding
+    }
+}
+
+/// Stall detection (module documentation, Stopping): the smallest gradient norm so far, and the short
+/// steps since it last fell by a tenth.
+#[derive(Debug, Clone, Copy)]
+struct Stall {
+    best: f64,
+    short_steps: usize,
+}
+
+impl Stall {
+    /// Records an accepted step (`short` as [`StepTests::short`]) that reached gradient norm `gn`; true
+    /// once [`STALL_ITERATIONS`] short steps in a row have not lowered the best gradient norm by a tenth.
+    fn stalled(&mut self, short: bool, gn: f64) -> bool {
+        self.short_steps = if short && gn > 0.9 * self.best {
+            self.short_steps + 1
+        } else {
+            0
+        };
+        self.best = self.best.min(gn);
+        self.short_steps >= STALL_ITERATIONS
+    }
 }
 
 /// A trial whose F differs from the current F by at most this many rounding allowances (`8ε Σ|term|`)
