@@ -20,6 +20,7 @@ mod plasticity;
 mod psi_fuzz;
 mod public_api;
 mod runtime_psi;
+mod scratch;
 mod solver;
 mod topology;
 mod user_meshes;

@@ -4,6 +4,7 @@
 
 use std::io::Cursor;
 
+use crate::scratch::Scratch;
 use hinge_core::TriMesh;
 use hinge_core::meshio::{
     MeshFileError, MeshFormat, PlyEncoding, read_mesh, read_mesh_from, write_mesh, write_off_to,
@@ -22,10 +23,8 @@ fn meshes() -> Vec<(&'static str, TriMesh)> {
     ]
 }
 
-fn tmp(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("hinge-mesh-files-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn tmp(name: &str) -> Scratch {
+    Scratch::new(&format!("mesh-files-{name}"))
 }
 
 fn read(bytes: &[u8], format: MeshFormat) -> Result<hinge_core::meshio::MeshFile, MeshFileError> {
@@ -62,7 +61,6 @@ fn every_format_reads_back_what_it_wrote_bitwise() {
         write_off_to(&mut bytes, x, t).unwrap();
         assert_eq!(read(&bytes, MeshFormat::Off).unwrap().mesh.positions(), x);
     }
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -330,7 +328,6 @@ fn stl_files_binary_and_ascii_weld_their_corners() {
     // Truncated binary: the sizes, one line.
     let e = message(&bytes[..bytes.len() - 7], MeshFormat::Stl);
     assert!(e.contains("(truncated?)") && e.contains("STL"), "{e}");
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -653,7 +650,6 @@ fn files_that_do_not_match_their_extension_are_errors_naming_the_format() {
     );
     let e = read_mesh(dir.join("missing.off")).unwrap_err().to_string();
     assert!(e.contains("missing.off"), "{e}");
-    std::fs::remove_dir_all(dir).unwrap();
     // An OFF that announces more than it has: no huge allocation, the missing vertex is named.
     let e = message(b"OFF\n4000000000 4000000000 0\n0 0 0\n", MeshFormat::Off);
     assert!(e.contains("ends after 1 of its 4000000000 vertices"), "{e}");

@@ -189,8 +189,7 @@ fn each_validation_error_is_distinct_and_names_the_element() {
 fn obj_round_trip_keeps_vertex_order() {
     let mesh = grid(3, 2, 1.5, 1.0, Diagonal::Alternating).unwrap();
     let deformed = hinge_core::grid::wave(mesh.positions());
-    let dir = std::env::temp_dir().join(format!("hinge-obj-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = crate::scratch::Scratch::new("obj-round-trip");
     let path = dir.join("m.obj");
     write_obj(&path, &deformed, mesh.triangles()).unwrap();
     let back = read_obj(&path).unwrap();
@@ -200,7 +199,6 @@ fn obj_round_trip_keeps_vertex_order() {
         "bit-exact coordinates, same order"
     );
     assert_eq!(back.triangles(), mesh.triangles());
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
