@@ -10,7 +10,7 @@ use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
 use hinge_core::psi::runtime::ParamValue;
 use hinge_core::{TriMesh, export};
-use hinge_energies::bending::{Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore};
+use hinge_energies::bending::{BuiltinBending, PsiConsumer, ViscousDamping};
 use hinge_energies::contact::{Contact, Obstacle};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::MembraneModel;
@@ -207,55 +207,31 @@ pub fn custom_psi(expr: &str, params: &[String]) -> Result<CustomPsi, String> {
 }
 
 /// Builds a hinge term of `hinge eval` from its parameters (`g(key)`, 0 when absent), its Hessian mode set.
-type HingeBuilder = fn(
-    &str,
-    &dyn Fn(&str) -> f64,
-    &TriMesh,
-    Method,
-    HessianMode,
-) -> Result<Box<dyn Energy>, String>;
+/// The one hinge energy of `hinge eval` that is not a [`BuiltinBending`] (`--hessian` applies to these).
+const VISCOUS_DAMPING: &str = "viscous-damping";
 
-/// The energies of `hinge eval` that are hinge terms (the ones `--hessian` applies to), each with its
-/// builder: one list serves the dispatch and the error message.
-const HINGE_ENERGIES: [(&str, HingeBuilder); 5] = [
-    ("discrete-shells", |name, g, rest, method, mode| {
+/// Builds [`hinge_term`] of the ψ [`BuiltinBending::with_psi`] hands it.
+struct HingeTermOf<'a> {
+    name: &'a str,
+    rest: &'a TriMesh,
+    method: Method,
+    mode: HessianMode,
+}
+
+impl PsiConsumer for HingeTermOf<'_> {
+    type Output = Result<Box<dyn Energy>, String>;
+    fn consume<P>(self, psi: P) -> Self::Output
+    where
+        P: HingePsi + Clone + Send + Sync + std::fmt::Debug + 'static,
+    {
         hinge_term(
-            name,
-            BendingModel::new(rest, DiscreteShells { k: g("k") }),
-            method,
-            mode,
+            self.name,
+            BendingModel::new(self.rest, psi),
+            self.method,
+            self.mode,
         )
-    }),
-    ("tan-bending", |name, g, rest, method, mode| {
-        hinge_term(
-            name,
-            BendingModel::new(rest, TanBending { k: g("k") }),
-            method,
-            mode,
-        )
-    }),
-    ("willmore", |name, g, rest, method, mode| {
-        hinge_term(
-            name,
-            BendingModel::new(rest, Willmore { k: g("k") }),
-            method,
-            mode,
-        )
-    }),
-    ("bridson", |name, g, rest, method, mode| {
-        hinge_term(
-            name,
-            BendingModel::new(rest, Bridson { k: g("k") }),
-            method,
-            mode,
-        )
-    }),
-    ("viscous-damping", |name, g, rest, method, mode| {
-        let model = BendingModel::new(rest, ViscousDamping { kd: g("kd") })
-            .and_then(|mut m| m.set_step(rest.positions(), g("dt")).map(|()| m));
-        hinge_term(name, model, method, mode)
-    }),
-];
+    }
+}
 
 /// A hinge term named `name` of a freshly built `model`, its Hessian mode set to `mode`.
 fn hinge_term<P: HingePsi + Send + 'static>(
@@ -281,12 +257,29 @@ fn build(
     let g = |k: &str| p.get(k).copied().unwrap_or(0.0);
     let model_err = |e: hinge_core::EvalError| format!("{energy}: {e}");
     let n = rest.n_vertices();
-    if let Some((_, make)) = HINGE_ENERGIES.iter().find(|(name, _)| *name == energy) {
-        let term = make(energy, &g, rest, method, mode)?;
+    if let Ok(builtin) = energy.parse::<BuiltinBending>() {
+        let term = builtin.with_psi(
+            g("k"),
+            HingeTermOf {
+                name: energy,
+                rest,
+                method,
+                mode,
+            },
+        )?;
+        return System::new(n, vec![term]).map_err(|e| e.to_string());
+    }
+    if energy == VISCOUS_DAMPING {
+        let model = BendingModel::new(rest, ViscousDamping { kd: g("kd") })
+            .and_then(|mut m| m.set_step(rest.positions(), g("dt")).map(|()| m));
+        let term = hinge_term(energy, model, method, mode)?;
         return System::new(n, vec![term]).map_err(|e| e.to_string());
     }
     if mode != HessianMode::Exact {
-        let names: Vec<&str> = HINGE_ENERGIES.iter().map(|(name, _)| *name).collect();
+        let names: Vec<&str> = BuiltinBending::NAMES
+            .into_iter()
+            .chain([VISCOUS_DAMPING])
+            .collect();
         return Err(format!(
             "--hessian {} applies to hinge energies ({}, or --psi), not `{energy}`",
             mode.name(),

@@ -21,7 +21,7 @@ use hinge_core::meshio::{FileNumbering, MeshFormat, write_mesh};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::HingePsi;
 use hinge_energies::bending::{
-    Bridson, DiscreteShells, TanBending, ViscousDamping, Willmore, plate_consistent_stiffness,
+    BuiltinBending, PsiConsumer, ViscousDamping, plate_consistent_stiffness,
     stiffness_from_material,
 };
 use hinge_energies::contact::{Contact, Obstacle};
@@ -312,18 +312,15 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         }),
     };
     let (bending, stiff_rest) = match scene.bending.energy.as_str() {
-        "discrete-shells" => bending_term(rest, DiscreteShells { k }, f)?,
-        "willmore" => bending_term(rest, Willmore { k }, f)?,
-        "bridson" => bending_term(rest, Bridson { k }, f)?,
         "custom" => match scene.custom_psi(k)? {
             crate::scene::CustomPsi::Small(p) => bending_term(rest, p, f)?,
             crate::scene::CustomPsi::Large(p) => bending_term(rest, p, f)?,
         },
-        "tan-bending" => bending_term(rest, TanBending { k }, f)?,
         other => {
-            return Err(format!(
-                "bending.energy: unknown `{other}` (discrete-shells, tan-bending, willmore, bridson, custom)"
-            ));
+            let builtin = other
+                .parse::<BuiltinBending>()
+                .map_err(|_| crate::scene::unknown_bending_energy(other))?;
+            builtin.with_psi(k, BendingTermOf { rest, options: f })?
         }
     };
     let masses = lumped_masses(rest, m.density);
@@ -732,6 +729,22 @@ struct HingeOptions<'a> {
 /// A scene's bending term, with its stiff rest hinges ([`StiffRest`]).
 type BendingTerm = (Box<dyn Energy>, Option<StiffRest>);
 
+/// Builds [`bending_term`] of the ψ [`BuiltinBending::with_psi`] hands it.
+struct BendingTermOf<'a> {
+    rest: &'a TriMesh,
+    options: HingeOptions<'a>,
+}
+
+impl PsiConsumer for BendingTermOf<'_> {
+    type Output = Result<BendingTerm, String>;
+    fn consume<P>(self, psi: P) -> Self::Output
+    where
+        P: HingePsi + Clone + Send + Sync + std::fmt::Debug + 'static,
+    {
+        bending_term(self.rest, psi, self.options)
+    }
+}
+
 fn bending_term<P: HingePsi + Send + 'static>(
     rest: &TriMesh,
     psi: P,
@@ -913,7 +926,7 @@ fn with_stiff_rest(
 
 /// Why a scene's `energy` makes a folded rest hinge stiff, where the reason is known.
 fn tan_note(energy: &str) -> &'static str {
-    if energy == "tan-bending" {
+    if energy.parse() == Ok(BuiltinBending::TanBending) {
         ", where tan bending stiffens as 1/cos⁴(θ̄/2)"
     } else {
         ""

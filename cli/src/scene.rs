@@ -10,6 +10,7 @@ use hinge_core::error::Num;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
+use hinge_energies::bending::BuiltinBending;
 use hinge_energies::membrane::MembraneModel;
 use serde::Deserialize;
 
@@ -82,6 +83,15 @@ pub struct Scene {
     /// built-in scene). Set by [`load`].
     #[serde(skip)]
     pub base: Option<PathBuf>,
+}
+
+/// The error for a `bending.energy` that is neither a built-in energy ([`BuiltinBending::NAMES`]) nor
+/// `custom`.
+pub(crate) fn unknown_bending_energy(energy: &str) -> String {
+    format!(
+        "bending.energy: unknown `{energy}` ({}, custom)",
+        BuiltinBending::NAMES.join(", ")
+    )
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -806,19 +816,9 @@ impl Scene {
                 return Err("pins.clamp_columns: must be at least 1".into());
             }
         }
-        if ![
-            "discrete-shells",
-            "tan-bending",
-            "willmore",
-            "bridson",
-            "custom",
-        ]
-        .contains(&self.bending.energy.as_str())
+        if self.bending.energy != "custom" && self.bending.energy.parse::<BuiltinBending>().is_err()
         {
-            return Err(format!(
-                "bending.energy: unknown `{}` (discrete-shells, tan-bending, willmore, bridson, custom)",
-                self.bending.energy
-            ));
+            return Err(unknown_bending_energy(&self.bending.energy));
         }
         match (self.bending.energy == "custom", &self.bending.psi) {
             (true, None) => {

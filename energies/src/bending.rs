@@ -1,7 +1,108 @@
 //! The hinge bending family, declared with the derive macro (ψ′ and ψ″ derived at compile time).
 
 use hinge_core::HingeEnergy;
+use hinge_core::psi::HingePsi;
 pub use hinge_core::psi::{DiscreteShells, TanBending};
+
+/// The built-in elastic bending energies by name: the one place their names (as scene files, `hinge eval`
+/// and the Python package spell them) and the text of their ψ are kept. Each ψ is its own type, so code
+/// that builds one from a name hands a [`PsiConsumer`] to [`BuiltinBending::with_psi`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BuiltinBending {
+    /// [`DiscreteShells`], `"discrete-shells"`.
+    DiscreteShells,
+    /// [`TanBending`], `"tan-bending"`.
+    TanBending,
+    /// [`Willmore`], `"willmore"`.
+    Willmore,
+    /// [`Bridson`], `"bridson"`.
+    Bridson,
+}
+
+/// A bending energy's name that is not one of [`BuiltinBending::NAMES`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown `{0}` (discrete-shells, tan-bending, willmore, bridson)")]
+pub struct UnknownBending(pub String);
+
+/// What [`BuiltinBending::with_psi`] hands the energy's ψ to: code generic over the ψ type (build a
+/// bending model, a hinge term, a bench row) for an energy chosen by name at run time.
+pub trait PsiConsumer {
+    /// What consuming the ψ gives.
+    type Output;
+    /// Consumes the ψ of the energy [`BuiltinBending::with_psi`] was called on.
+    fn consume<P>(self, psi: P) -> Self::Output
+    where
+        P: HingePsi + Clone + Send + Sync + std::fmt::Debug + 'static;
+}
+
+impl BuiltinBending {
+    /// Every built-in bending energy, in the order of [`BuiltinBending::NAMES`].
+    pub const ALL: [Self; 4] = [
+        Self::DiscreteShells,
+        Self::TanBending,
+        Self::Willmore,
+        Self::Bridson,
+    ];
+    /// Their names, as scene files (`bending.energy`), `hinge eval` and the Python package spell them.
+    pub const NAMES: [&'static str; 4] = ["discrete-shells", "tan-bending", "willmore", "bridson"];
+
+    /// The energy's name (`"discrete-shells"`, `"tan-bending"`, `"willmore"`, `"bridson"`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::DiscreteShells => Self::NAMES[0],
+            Self::TanBending => Self::NAMES[1],
+            Self::Willmore => Self::NAMES[2],
+            Self::Bridson => Self::NAMES[3],
+        }
+    }
+
+    /// The text of the energy's `#[psi(…)]` in the derive's language, which the run-time ψ language
+    /// (`hinge_symbolic`) parses too: the Python package builds the built-in energies from it. The
+    /// integration test `runtime_psi::builtin_bending_sources_match_the_derive` checks that it gives the
+    /// derived energy's ψ, ψ′ and ψ″.
+    #[must_use]
+    pub fn psi_source(self) -> &'static str {
+        match self {
+            Self::DiscreteShells => "k * a * (theta - theta_bar).powi(2)",
+            Self::TanBending => {
+                "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)"
+            }
+            Self::Willmore => {
+                "k * a * (2.0 * (theta / 2.0).sin() - 2.0 * (theta_bar / 2.0).sin()).powi(2)"
+            }
+            Self::Bridson => {
+                "k * a * (2.0 * (theta_bar / 2.0).cos() - 2.0 * (theta / 2.0).cos() - (theta - theta_bar) * (theta_bar / 2.0).sin())"
+            }
+        }
+    }
+
+    /// Hands the energy's ψ with stiffness `k` to `consumer`.
+    pub fn with_psi<C: PsiConsumer>(self, k: f64, consumer: C) -> C::Output {
+        match self {
+            Self::DiscreteShells => consumer.consume(DiscreteShells { k }),
+            Self::TanBending => consumer.consume(TanBending { k }),
+            Self::Willmore => consumer.consume(Willmore { k }),
+            Self::Bridson => consumer.consume(Bridson { k }),
+        }
+    }
+}
+
+impl std::str::FromStr for BuiltinBending {
+    type Err = UnknownBending;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| UnknownBending(s.to_string()))
+    }
+}
+
+impl std::fmt::Display for BuiltinBending {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
 
 /// Bending stiffness from material (paper Eq. 11): `k = Y h³ / (24 (1 − ν²))` for Young's modulus `Y`,
 /// thickness `h` and Poisson ratio `ν`.

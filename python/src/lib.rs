@@ -15,6 +15,7 @@ use hinge_core::layout::Positions;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use hinge_core::{TriMesh, topology};
+use hinge_energies::bending::BuiltinBending;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1,
     PyUntypedArrayMethods,
@@ -23,37 +24,22 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-/// The built-in hinge energies: name, ψ in the derive's language (the text of their `#[psi(…)]`), the
+/// A built-in hinge energy: name, ψ in the derive's language (the text of its `#[psi(…)]`), the
 /// parameters with their defaults.
 type EnergyEntry = (&'static str, &'static str, &'static [(&'static str, f64)]);
 
-const ENERGIES: [EnergyEntry; 5] = [
-    (
-        "discrete-shells",
-        "k * a * (theta - theta_bar).powi(2)",
-        &[("k", 1.0)],
-    ),
-    (
-        "tan-bending",
-        "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)",
-        &[("k", 1.0)],
-    ),
-    (
-        "willmore",
-        "k * a * (2.0 * (theta / 2.0).sin() - 2.0 * (theta_bar / 2.0).sin()).powi(2)",
-        &[("k", 1.0)],
-    ),
-    (
-        "bridson",
-        "k * a * (2.0 * (theta_bar / 2.0).cos() - 2.0 * (theta / 2.0).cos() - (theta - theta_bar) * (theta_bar / 2.0).sin())",
-        &[("k", 1.0)],
-    ),
-    (
-        "viscous-damping",
-        "kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2)",
-        &[("kd", 1.0)],
-    ),
-];
+/// The built-in hinge energies: the elastic ones of [`BuiltinBending`] (names and ψ text kept there), then
+/// viscous damping.
+fn builtin_energies() -> impl Iterator<Item = EnergyEntry> {
+    BuiltinBending::ALL
+        .into_iter()
+        .map(|b| -> EnergyEntry { (b.name(), b.psi_source(), &[("k", 1.0)]) })
+        .chain([(
+            "viscous-damping",
+            "kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2)",
+            &[("kd", 1.0)][..],
+        )])
+}
 
 pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
@@ -103,8 +89,8 @@ pub(crate) fn psi_spec(
         (None, Some(expr)) => ("custom".to_string(), expr.to_string(), given),
         (e, None) => {
             let e = e.unwrap_or("discrete-shells");
-            let Some((name, text, defaults)) = ENERGIES.iter().find(|x| x.0 == e) else {
-                let known: Vec<&str> = ENERGIES.iter().map(|x| x.0).collect();
+            let Some((name, text, defaults)) = builtin_energies().find(|x| x.0 == e) else {
+                let known: Vec<&str> = builtin_energies().map(|x| x.0).collect();
                 return Err(value_error(format!(
                     "unknown energy `{e}` (known: {})",
                     known.join(", ")
@@ -668,8 +654,7 @@ fn write_mesh(
 /// The built-in energies: a list of (name, ψ text, {parameter: default}).
 #[pyfunction]
 fn energies(py: Python<'_>) -> PyResult<Vec<(String, String, Py<PyDict>)>> {
-    ENERGIES
-        .iter()
+    builtin_energies()
         .map(|(n, t, p)| {
             let d = PyDict::new(py);
             for (k, v) in p.iter() {

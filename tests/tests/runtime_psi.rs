@@ -7,8 +7,9 @@ use hinge_core::HingeEnergy;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{HingeTerm, System};
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
-use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities, TanBending};
+use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities};
 use hinge_core::{EvalError, shapes};
+use hinge_energies::bending::{BuiltinBending, PsiConsumer};
 use hinge_tests::*;
 use num_dual::second_derivative;
 
@@ -140,43 +141,60 @@ const GRAMMAR: [&str; 14] = [
     "-theta.powi(3) - -2.0 * theta",
 ];
 
-/// The expressions of the built-in energies, as text, equal the derived ones bitwise through the whole
-/// refactored assembly (energy, gradient, Hessian) on a renumbered icosphere.
+/// Evaluates a bending model of the ψ it is handed (energy, gradient, Hessian as bits).
+struct Assemble<'a> {
+    mesh: &'a hinge_core::TriMesh,
+    x: &'a [nalgebra::Vector3<f64>],
+    method: Method,
+}
+
+impl PsiConsumer for Assemble<'_> {
+    type Output = (u64, Vec<u64>, Vec<u64>);
+    fn consume<P>(self, psi: P) -> Self::Output
+    where
+        P: HingePsi + Clone + Send + Sync + std::fmt::Debug + 'static,
+    {
+        eval_all(
+            &BendingModel::new(self.mesh, psi).expect("m"),
+            self.x,
+            self.method,
+        )
+    }
+}
+
+/// The built-in energies' ψ as text (`BuiltinBending::psi_source`, which the Python package builds them
+/// from) equal the derived ones bitwise through the whole assembly (energy, gradient, Hessian) on a
+/// renumbered icosphere, with every method; and each name parses back to its energy.
 #[test]
-fn runtime_builtins_assemble_bitwise_like_the_derive() {
+fn builtin_bending_sources_match_the_derive() {
     let mesh = renumbered(shapes::icosphere(2, 1.0).expect("mesh"), 11);
     let x = deform(&mesh, 3);
     let k = 1.7;
-    let ds = RuntimePsi::new("k * a * (theta - theta_bar).powi(2)", [("k", k.into())]).expect("ds");
-    let tb = RuntimePsi::new(
-        "k * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_bar / 2.0).tan()).powi(2)",
-        [("k", k.into())],
-    )
-    .expect("tb");
-    for method in [Method::Refactored, Method::PerHinge, Method::Autodiff] {
-        let a = eval_all(
-            &BendingModel::new(&mesh, ds.clone()).expect("m"),
-            &x,
-            method,
-        );
-        let b = eval_all(
-            &BendingModel::new(&mesh, DiscreteShells { k }).expect("m"),
-            &x,
-            method,
-        );
-        assert_eq!(a, b, "discrete shells, {method:?}");
-        let a = eval_all(
-            &BendingModel::new(&mesh, tb.clone()).expect("m"),
-            &x,
-            method,
-        );
-        let b = eval_all(
-            &BendingModel::new(&mesh, TanBending { k }).expect("m"),
-            &x,
-            method,
-        );
-        assert_eq!(a, b, "tan bending, {method:?}");
+    for b in BuiltinBending::ALL {
+        assert_eq!(b.name().parse::<BuiltinBending>(), Ok(b));
+        let rt = RuntimePsi::new(b.psi_source(), [("k", k.into())]).expect("source compiles");
+        for method in [Method::Refactored, Method::PerHinge, Method::Autodiff] {
+            let a = eval_all(
+                &BendingModel::new(&mesh, rt.clone()).expect("m"),
+                &x,
+                method,
+            );
+            let d = b.with_psi(
+                k,
+                Assemble {
+                    mesh: &mesh,
+                    x: &x,
+                    method,
+                },
+            );
+            assert_eq!(a, d, "{b}, {method:?}");
+        }
     }
+    let e = "tan".parse::<BuiltinBending>().unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "unknown `tan` (discrete-shells, tan-bending, willmore, bridson)"
+    );
 }
 
 fn renumbered(mesh: hinge_core::TriMesh, seed: u64) -> hinge_core::TriMesh {
