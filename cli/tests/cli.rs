@@ -5,6 +5,7 @@ use std::process::Command;
 
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::psi::TanBending;
+use hinge_tests::Scratch;
 
 fn hinge(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_hinge"))
@@ -23,33 +24,9 @@ fn one_line_failure(args: &[&str]) -> String {
 }
 
 /// A scratch directory under the system's temporary directory, removed when dropped (also when the test
-/// fails).
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        // Tests that remove it themselves (checking that they can) leave nothing to remove.
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-impl std::ops::Deref for Scratch {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl AsRef<Path> for Scratch {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
+/// fails): `hinge_tests::Scratch`.
 fn tmp(name: &str) -> Scratch {
-    let d = std::env::temp_dir().join(format!("hinge-cli-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    Scratch(d)
+    Scratch::new(&format!("cli-{name}"))
 }
 
 /// Writes `dir/file`: built-in scene `scene` (`hinge scenes show`) with each `(from, to)` of `edits`

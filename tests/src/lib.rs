@@ -1,5 +1,5 @@
-//! Shared helpers for hinge's cross-crate tests: a seeded generator, random hinge stencils, finite
-//! differences and error metrics.
+//! Shared helpers for hinge's cross-crate tests (and the command line's): a seeded generator, random hinge
+//! stencils, finite differences, error metrics and scratch directories.
 #![deny(missing_docs)]
 
 use hinge_core::hinge::Stencil;
@@ -424,4 +424,42 @@ pub fn membrane_deformation(rest: &hinge_core::TriMesh, seed: u64) -> Vec<Vector
             )
         })
         .collect()
+}
+
+/// A scratch directory for a test that writes files: `hinge-{name}-{pid}` under the system's temporary
+/// directory, removed with everything in it when dropped, so a test that fails (panics) leaves nothing
+/// behind either.
+pub struct Scratch(std::path::PathBuf);
+
+impl Scratch {
+    /// Creates the directory (emptied first if a previous run of the same process id left it).
+    ///
+    /// # Panics
+    /// When the directory cannot be created (a test environment without a writable temporary directory).
+    pub fn new(name: &str) -> Scratch {
+        let d = std::env::temp_dir().join(format!("hinge-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).expect("a writable temporary directory");
+        Scratch(d)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        // Tests that remove it themselves (checking that they can) leave nothing to remove.
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::path::Path> for Scratch {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.0
+    }
 }

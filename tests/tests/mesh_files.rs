@@ -4,7 +4,6 @@
 
 use std::io::Cursor;
 
-use crate::scratch::Scratch;
 use hinge_core::TriMesh;
 use hinge_core::meshio::{
     MeshFileError, MeshFormat, PlyEncoding, read_mesh, read_mesh_from, write_mesh, write_off_to,
@@ -12,6 +11,7 @@ use hinge_core::meshio::{
 };
 use hinge_core::nalgebra::Vector3;
 use hinge_core::shapes::{icosphere, irregular_sheet, random_permutation, renumber, torus};
+use hinge_tests::Scratch;
 
 fn meshes() -> Vec<(&'static str, TriMesh)> {
     let ico = icosphere(2, 0.7).unwrap();
@@ -24,7 +24,7 @@ fn meshes() -> Vec<(&'static str, TriMesh)> {
 }
 
 fn tmp(name: &str) -> Scratch {
-    Scratch::new(&format!("mesh-files-{name}"))
+    Scratch::new(&format!("tests-mesh-files-{name}"))
 }
 
 fn read(bytes: &[u8], format: MeshFormat) -> Result<hinge_core::meshio::MeshFile, MeshFileError> {

@@ -189,7 +189,7 @@ fn each_validation_error_is_distinct_and_names_the_element() {
 fn obj_round_trip_keeps_vertex_order() {
     let mesh = grid(3, 2, 1.5, 1.0, Diagonal::Alternating).unwrap();
     let deformed = hinge_core::grid::wave(mesh.positions());
-    let dir = crate::scratch::Scratch::new("obj-round-trip");
+    let dir = hinge_tests::Scratch::new("tests-obj-round-trip");
     let path = dir.join("m.obj");
     write_obj(&path, &deformed, mesh.triangles()).unwrap();
     let back = read_obj(&path).unwrap();
