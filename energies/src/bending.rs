@@ -21,7 +21,7 @@ pub enum BuiltinBending {
 
 /// A bending energy's name that is not one of [`BuiltinBending::NAMES`].
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown `{0}` (discrete-shells, tan-bending, willmore, bridson)")]
+#[error("unknown `{0}` ({known})", known = BuiltinBending::NAMES.join(", "))]
 pub struct UnknownBending(pub String);
 
 /// What [`BuiltinBending::with_psi`] hands the energy's ψ to: code generic over the ψ type (build a
