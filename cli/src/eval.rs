@@ -208,7 +208,7 @@ pub fn custom_psi(expr: &str, params: &[String]) -> Result<CustomPsi, String> {
 
 /// Builds a hinge term of `hinge eval` from its parameters (`g(key)`, 0 when absent), its Hessian mode set.
 /// The one hinge energy of `hinge eval` that is not a [`BuiltinBending`] (`--hessian` applies to these).
-const VISCOUS_DAMPING: &str = "viscous-damping";
+const VISCOUS_DAMPING: &str = ViscousDamping::NAME;
 
 /// Builds [`hinge_term`] of the ψ [`BuiltinBending::with_psi`] hands it.
 struct HingeTermOf<'a> {

@@ -157,3 +157,14 @@ pub struct ViscousDamping {
     /// Damping coefficient k_d.
     pub kd: f64,
 }
+
+impl ViscousDamping {
+    /// Its name, as `hinge eval` and the Python package spell it.
+    pub const NAME: &'static str = "viscous-damping";
+    /// The text of its `#[psi(…)]` in the derive's language, which the run-time ψ language
+    /// (`hinge_symbolic`) parses too: the Python package builds viscous damping from it. The integration
+    /// test `runtime_psi::viscous_damping_source_matches_the_derive` checks that it gives the derived
+    /// energy's ψ, ψ′ and ψ″.
+    pub const PSI_SOURCE: &'static str =
+        "kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2)";
+}

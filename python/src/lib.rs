@@ -15,7 +15,7 @@ use hinge_core::layout::Positions;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi};
 use hinge_core::{TriMesh, topology};
-use hinge_energies::bending::BuiltinBending;
+use hinge_energies::bending::{BuiltinBending, ViscousDamping};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadwriteArray1,
     PyUntypedArrayMethods,
@@ -29,14 +29,14 @@ use pyo3::types::PyDict;
 type EnergyEntry = (&'static str, &'static str, &'static [(&'static str, f64)]);
 
 /// The built-in hinge energies: the elastic ones of [`BuiltinBending`] (names and ψ text kept there), then
-/// viscous damping.
+/// [`ViscousDamping`] (its `NAME` and `PSI_SOURCE`).
 fn builtin_energies() -> impl Iterator<Item = EnergyEntry> {
     BuiltinBending::ALL
         .into_iter()
         .map(|b| -> EnergyEntry { (b.name(), b.psi_source(), &[("k", 1.0)]) })
         .chain([(
-            "viscous-damping",
-            "kd / dt * a * (2.0 * (theta / 2.0).tan() - 2.0 * (theta_prev / 2.0).tan()).powi(2)",
+            ViscousDamping::NAME,
+            ViscousDamping::PSI_SOURCE,
             &[("kd", 1.0)][..],
         )])
 }

@@ -9,7 +9,7 @@ use hinge_core::energy::{HingeTerm, System};
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use hinge_core::psi::{DiscreteShells, HingePsi, HingeQuantities};
 use hinge_core::{EvalError, shapes};
-use hinge_energies::bending::{BuiltinBending, PsiConsumer};
+use hinge_energies::bending::{BuiltinBending, PsiConsumer, ViscousDamping};
 use hinge_tests::*;
 use num_dual::second_derivative;
 
@@ -195,6 +195,27 @@ fn builtin_bending_sources_match_the_derive() {
         e,
         "unknown `tan` (discrete-shells, tan-bending, willmore, bridson)"
     );
+}
+
+/// Viscous damping's ψ as text (`ViscousDamping::PSI_SOURCE`, which the Python package builds it from)
+/// equals the derived one bitwise through the whole assembly, with the step state (θ_prev, Δt) set the same
+/// way on both, on a renumbered icosphere with every method.
+#[test]
+fn viscous_damping_source_matches_the_derive() {
+    let mesh = renumbered(shapes::icosphere(2, 1.0).expect("mesh"), 12);
+    let x_prev = deform(&mesh, 4);
+    let x = deform(&mesh, 5);
+    let (kd, dt) = (0.37, 0.004);
+    let rt = RuntimePsi::new(ViscousDamping::PSI_SOURCE, [("kd", kd.into())]).expect("compiles");
+    let mut a = BendingModel::new(&mesh, rt).expect("m");
+    let mut d = BendingModel::new(&mesh, ViscousDamping { kd }).expect("m");
+    a.set_step(&x_prev, dt).expect("step");
+    d.set_step(&x_prev, dt).expect("step");
+    for method in [Method::Refactored, Method::PerHinge, Method::Autodiff] {
+        let (ea, ed) = (eval_all(&a, &x, method), eval_all(&d, &x, method));
+        assert_ne!(f64::from_bits(ea.0), 0.0, "the states differ, so damping is not zero");
+        assert_eq!(ea, ed, "{method:?}");
+    }
 }
 
 fn renumbered(mesh: hinge_core::TriMesh, seed: u64) -> hinge_core::TriMesh {
