@@ -726,7 +726,8 @@ impl Scene {
             ));
         }
         // A budget beyond a million Newton iterations per step is a run that never ends, not a limit.
-        if !(1..=1_000_000).contains(&self.solver.max_iterations) {
+        if !(1..=hinge_solver::newton::MAX_ITERATIONS_CEILING).contains(&self.solver.max_iterations)
+        {
             return Err(format!(
                 "solver.max_iterations: must be from 1 to 1 000 000, got {}",
                 self.solver.max_iterations

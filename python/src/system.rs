@@ -20,7 +20,8 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
-    Globalization, ImplicitEuler as Stepper, Newton, NewtonParams, NewtonStats, SubstepPolicy,
+    Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING, Newton, NewtonParams,
+    NewtonStats, SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, continued_start_all, mean_edge_length, minimize_continued_all,
@@ -581,10 +582,16 @@ struct PyNewtonOptions<'a> {
 /// edge length, as the CLI does), [`NewtonParams::remember_shift`] and
 /// [`NewtonParams::geodesic_acceleration`].
 fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParams> {
-    if o.max_iterations == 0 || !(o.gradient_tolerance > 0.0 && o.gradient_tolerance.is_finite()) {
+    if !(1..=MAX_ITERATIONS_CEILING).contains(&o.max_iterations) {
         return Err(value_error(format!(
-            "max_iterations must be ≥ 1 and gradient_tolerance positive and finite (got {}, {})",
-            o.max_iterations, o.gradient_tolerance
+            "max_iterations must be from 1 to 1 000 000, got {}",
+            o.max_iterations
+        )));
+    }
+    if !(o.gradient_tolerance > 0.0 && o.gradient_tolerance.is_finite()) {
+        return Err(value_error(format!(
+            "gradient_tolerance must be positive and finite, got {}",
+            o.gradient_tolerance
         )));
     }
     for (name, v) in [

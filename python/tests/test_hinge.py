@@ -1325,6 +1325,11 @@ def _system():
         (lambda V, s: hinge.solve_static(s, V, max_iterations=float("inf")), "max_iterations must be a whole"),
         (lambda V, s: hinge.solve_static(s, V, max_iterations=2**70), "below 2"),
         (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=None), "gradient_tolerance must be a number"),
+        # Newton's budget is bounded as in scene files (a million iterations per solve).
+        (lambda V, s: hinge.solve_static(s, V, max_iterations=0), "max_iterations must be from 1 to 1 000 000, got 0"),
+        (lambda V, s: hinge.solve_static(s, V, max_iterations=1_000_001), "from 1 to 1 000 000, got 1000001"),
+        (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=10**9), "from 1 to 1 000 000"),
+        (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=0.0), "gradient_tolerance must be positive"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=[0.01], density=0.1), "dt must be a number"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=-3), "at least 0"),
         (lambda V, s: hinge.adjoint_gradient(s, V, np.zeros_like(V), None), "parameters must be a string"),

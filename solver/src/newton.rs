@@ -210,10 +210,14 @@ pub struct Inertia {
     pub dt: f64,
 }
 
+/// The largest [`NewtonParams::max_iterations`] the scene files and the Python package accept: a budget
+/// beyond a million Newton iterations per solve is a run that never ends, not a limit.
+pub const MAX_ITERATIONS_CEILING: usize = 1_000_000;
+
 /// Newton parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NewtonParams {
-    /// Iteration limit.
+    /// Iteration limit (front ends accept 1 to [`MAX_ITERATIONS_CEILING`]).
     pub max_iterations: usize,
     /// Stop when the free gradient norm ‖∇F‖ is at most this.
     pub gradient_tolerance: f64,

@@ -213,7 +213,11 @@ fn viscous_damping_source_matches_the_derive() {
     d.set_step(&x_prev, dt).expect("step");
     for method in [Method::Refactored, Method::PerHinge, Method::Autodiff] {
         let (ea, ed) = (eval_all(&a, &x, method), eval_all(&d, &x, method));
-        assert_ne!(f64::from_bits(ea.0), 0.0, "the states differ, so damping is not zero");
+        assert_ne!(
+            f64::from_bits(ea.0),
+            0.0,
+            "the states differ, so damping is not zero"
+        );
         assert_eq!(ea, ed, "{method:?}");
     }
 }

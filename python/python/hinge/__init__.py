@@ -441,7 +441,8 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
                  extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
                  relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
-    system's energy. Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
+    system's energy, at most ``max_iterations`` Newton iterations (1 to 1 000 000, as in scene files).
+    Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``accelerated_iterations``,
     ``final_gradient_norm``,
     ``gradient_norms``). ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
