@@ -49,7 +49,7 @@ pub struct FitArgs {
     /// Output directory for fitted.toml and fitted.obj (default: out/fit-SCENE).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// L-BFGS iteration limit.
+    /// L-BFGS iteration limit, 0 to 1 000 000 (0 evaluates the start only).
     #[arg(long, default_value_t = 50)]
     pub max_iterations: usize,
     /// Weight of the smoothness regularizer on per-hinge keys (squared differences of the log values, or
@@ -506,6 +506,13 @@ pub fn run(args: FitArgs) -> Result<(), String> {
         return Err(format!(
             "--smoothness {}: must be non-negative and finite",
             args.smoothness
+        ));
+    }
+    if args.max_iterations > hinge_solver::newton::MAX_ITERATIONS_CEILING {
+        return Err(format!(
+            "--max-iterations {}: must be from 0 to {}",
+            args.max_iterations,
+            hinge_solver::newton::MAX_ITERATIONS_CEILING_TEXT
         ));
     }
     let pool = rayon::ThreadPoolBuilder::new()

@@ -729,7 +729,8 @@ impl Scene {
         if !(1..=hinge_solver::newton::MAX_ITERATIONS_CEILING).contains(&self.solver.max_iterations)
         {
             return Err(format!(
-                "solver.max_iterations: must be from 1 to 1 000 000, got {}",
+                "solver.max_iterations: must be from 1 to {}, got {}",
+                hinge_solver::newton::MAX_ITERATIONS_CEILING_TEXT,
                 self.solver.max_iterations
             ));
         }

@@ -3332,6 +3332,19 @@ fn fit_recovers_keys_from_static_shapes() {
             ],
             "--smoothness",
         ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.young",
+                "--max-iterations",
+                "1000001",
+            ],
+            "--max-iterations 1000001: must be from 0 to 1 000 000",
+        ),
     ] {
         let out = hinge(&args);
         let err = String::from_utf8_lossy(&out.stderr);

@@ -20,8 +20,8 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
-    Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING, Newton, NewtonParams,
-    NewtonStats, SubstepPolicy,
+    Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING, MAX_ITERATIONS_CEILING_TEXT,
+    Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, continued_start_all, mean_edge_length, minimize_continued_all,
@@ -584,7 +584,7 @@ struct PyNewtonOptions<'a> {
 fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParams> {
     if !(1..=MAX_ITERATIONS_CEILING).contains(&o.max_iterations) {
         return Err(value_error(format!(
-            "max_iterations must be from 1 to 1 000 000, got {}",
+            "max_iterations must be from 1 to {MAX_ITERATIONS_CEILING_TEXT}, got {}",
             o.max_iterations
         )));
     }
@@ -1126,6 +1126,11 @@ pub fn fit<'py>(
     gradient_tolerance: f64,
     membrane_continuation: bool,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
+    let options = FitOptions {
+        max_iterations,
+        ..FitOptions::default()
+    };
+    options.validate().map_err(|e| value_error(e.to_string()))?;
     let mut x = system.positions(&x0)?;
     let target = system.positions(&target)?;
     let (rest, terms) = (system.rest.clone(), system.terms.clone());
@@ -1167,10 +1172,6 @@ pub fn fit<'py>(
             positive,
         });
     }
-    let options = FitOptions {
-        max_iterations,
-        ..FitOptions::default()
-    };
     let (r, signal) = interruptible(py, |stop| -> Result<(FitResult, usize), String> {
         let (parameters, stages) = if membrane_continuation {
             continuation(&terms, sys, &rest)?
@@ -1228,11 +1229,12 @@ pub fn fit_scene<'py>(
     max_iterations: usize,
     smoothness: f64,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
-    if !(smoothness >= 0.0 && smoothness.is_finite()) {
-        return Err(value_error(format!(
-            "smoothness must be non-negative and finite, got {smoothness}"
-        )));
-    }
+    let options = FitOptions {
+        max_iterations,
+        smoothness,
+        ..FitOptions::default()
+    };
+    options.validate().map_err(|e| value_error(e.to_string()))?;
     let (sc, base) = hinge_cli::scene::load(scene).map_err(value_error)?;
     let rest = sc.rest_mesh(base.as_deref()).map_err(value_error)?;
     let (target_mesh, name) = if let Ok(path) = target.extract::<String>() {
@@ -1259,11 +1261,6 @@ pub fn fit_scene<'py>(
             rest.with_positions(x).map_err(value_error)?,
             "target".to_string(),
         )
-    };
-    let options = FitOptions {
-        max_iterations,
-        smoothness,
-        ..FitOptions::default()
     };
     let (r, signal) = interruptible(py, |stop| {
         hinge_cli::fit::fit_scene_until(

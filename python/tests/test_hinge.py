@@ -1330,6 +1330,10 @@ def _system():
         (lambda V, s: hinge.solve_static(s, V, max_iterations=1_000_001), "from 1 to 1 000 000, got 1000001"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=10**9), "from 1 to 1 000 000"),
         (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=0.0), "gradient_tolerance must be positive"),
+        # The fits' L-BFGS budget too (0 evaluates the start only).
+        (lambda V, s: hinge.fit(s, V, V, ["tan-bending.k"], max_iterations=1_000_001), "max_iterations must be from 0 to 1 000 000, got 1000001"),
+        (lambda V, s: hinge.fit_scene("beam1", V, "material.young", max_iterations=10**7), "from 0 to 1 000 000"),
+        (lambda V, s: hinge.fit_scene("beam1", V, "material.young", smoothness=float("nan")), "smoothness must be non-negative"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=[0.01], density=0.1), "dt must be a number"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=-3), "at least 0"),
         (lambda V, s: hinge.adjoint_gradient(s, V, np.zeros_like(V), None), "parameters must be a string"),

@@ -26,7 +26,9 @@ use hinge_core::nalgebra::Vector3;
 use hinge_energies::pins::Pins;
 
 use crate::linear::{FaerLlt, LinearError, LinearSolver};
-use crate::newton::{Newton, Reduced, SolverError, norm};
+use crate::newton::{
+    MAX_ITERATIONS_CEILING, MAX_ITERATIONS_CEILING_TEXT, Newton, Reduced, SolverError, norm,
+};
 
 /// Why a sensitivity or a fit could not be computed.
 #[derive(Debug, thiserror::Error)]
@@ -443,6 +445,73 @@ pub struct FitOptions {
     pub smooth_pairs: Vec<(usize, usize, usize)>,
 }
 
+impl FitOptions {
+    /// The largest [`FitOptions::max_line_search`]: the trial step has halved to `2⁻⁶⁴` of the first by
+    /// then, below any change the loss can show.
+    pub const MAX_LINE_SEARCH: usize = 64;
+
+    /// The largest [`FitOptions::memory`]: each pair held costs two vectors of the variables' length and a
+    /// pass over them per iteration.
+    pub const MAX_MEMORY: usize = 1_000;
+
+    /// Checks the options: `max_iterations` at most [`MAX_ITERATIONS_CEILING`] (0 evaluates the start
+    /// only), `max_line_search` at most [`FitOptions::MAX_LINE_SEARCH`], `memory` at most
+    /// [`FitOptions::MAX_MEMORY`], the tolerances, `smoothness` and `identifiability_tolerance` finite and
+    /// non-negative, `max_step` finite and positive.
+    ///
+    /// # Errors
+    /// [`AdjointError::Setup`] naming the first option out of range and its value.
+    pub fn validate(&self) -> Result<(), AdjointError> {
+        if self.max_iterations > MAX_ITERATIONS_CEILING {
+            return Err(AdjointError::Setup(format!(
+                "max_iterations must be from 0 to {MAX_ITERATIONS_CEILING_TEXT}, got {}",
+                self.max_iterations
+            )));
+        }
+        if self.max_line_search > Self::MAX_LINE_SEARCH {
+            return Err(AdjointError::Setup(format!(
+                "max_line_search must be from 0 to {}, got {}",
+                Self::MAX_LINE_SEARCH,
+                self.max_line_search
+            )));
+        }
+        if self.memory > Self::MAX_MEMORY {
+            return Err(AdjointError::Setup(format!(
+                "memory must be from 0 to {}, got {}",
+                Self::MAX_MEMORY,
+                self.memory
+            )));
+        }
+        for (name, value) in [
+            ("loss_tolerance", self.loss_tolerance),
+            ("relative_loss_tolerance", self.relative_loss_tolerance),
+            (
+                "relative_gradient_tolerance",
+                self.relative_gradient_tolerance,
+            ),
+            (
+                "relative_decrease_tolerance",
+                self.relative_decrease_tolerance,
+            ),
+            ("identifiability_tolerance", self.identifiability_tolerance),
+            ("smoothness", self.smoothness),
+        ] {
+            if !(value >= 0.0 && value.is_finite()) {
+                return Err(AdjointError::Setup(format!(
+                    "{name} must be non-negative and finite, got {value}"
+                )));
+            }
+        }
+        if !(self.max_step > 0.0 && self.max_step.is_finite()) {
+            return Err(AdjointError::Setup(format!(
+                "max_step must be positive and finite, got {}",
+                self.max_step
+            )));
+        }
+        Ok(())
+    }
+}
+
 impl Default for FitOptions {
     fn default() -> Self {
         Self {
@@ -545,6 +614,7 @@ impl<'a> Fit<'a> {
         variables: Vec<FitVariable>,
         options: FitOptions,
     ) -> Result<Self, AdjointError> {
+        options.validate()?;
         let known = system.parameters();
         for v in &variables {
             if v.start.is_empty() || v.links.is_empty() {

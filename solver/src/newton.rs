@@ -214,6 +214,10 @@ pub struct Inertia {
 /// beyond a million Newton iterations per solve is a run that never ends, not a limit.
 pub const MAX_ITERATIONS_CEILING: usize = 1_000_000;
 
+/// [`MAX_ITERATIONS_CEILING`] as front ends' messages print it, digits grouped by threes with spaces (a
+/// unit test keeps the two equal).
+pub const MAX_ITERATIONS_CEILING_TEXT: &str = "1 000 000";
+
 /// Newton parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NewtonParams {
@@ -1829,6 +1833,21 @@ fn stuck(p: &NewtonParams, stats: &NewtonStats, x: &[Vector3<f64>]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::norm;
+
+    #[test]
+    fn ceiling_text_prints_the_ceiling() {
+        use super::{MAX_ITERATIONS_CEILING, MAX_ITERATIONS_CEILING_TEXT};
+        let groups: Vec<&str> = MAX_ITERATIONS_CEILING_TEXT.split(' ').collect();
+        assert!(
+            (1..=3).contains(&groups[0].len()),
+            "{MAX_ITERATIONS_CEILING_TEXT}"
+        );
+        assert!(
+            groups[1..].iter().all(|g| g.len() == 3),
+            "{MAX_ITERATIONS_CEILING_TEXT}"
+        );
+        assert_eq!(groups.concat().parse::<usize>(), Ok(MAX_ITERATIONS_CEILING));
+    }
 
     /// The stuck test on the solves that motivated it and on those it must leave alone (their recorded
     /// gradient and step norms): the lumpy shell's frame 28 (stuck), a plastic hinge and a spring cloth

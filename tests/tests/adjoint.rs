@@ -898,6 +898,164 @@ fn a_stop_request_ends_a_fit_with_the_start_values_restored() {
     );
 }
 
+/// Fit options out of range are refused by `Fit::new` with a setup error naming the option and its value;
+/// the edges of each range are accepted.
+#[test]
+fn fit_options_out_of_range_are_refused_by_name() {
+    use hinge_solver::newton::MAX_ITERATIONS_CEILING;
+    let (c, system, mut newton, variable, _) = young_s_modulus_fit(2e8);
+    let d = FitOptions::default;
+    let bad: Vec<(FitOptions, &str)> = vec![
+        (
+            FitOptions {
+                max_iterations: MAX_ITERATIONS_CEILING + 1,
+                ..d()
+            },
+            "max_iterations must be from 0 to 1 000 000, got 1000001",
+        ),
+        (
+            FitOptions {
+                max_iterations: usize::MAX,
+                ..d()
+            },
+            "max_iterations must be from 0 to 1 000 000",
+        ),
+        (
+            FitOptions {
+                max_line_search: 65,
+                ..d()
+            },
+            "max_line_search must be from 0 to 64, got 65",
+        ),
+        (
+            FitOptions {
+                memory: 1_001,
+                ..d()
+            },
+            "memory must be from 0 to 1000, got 1001",
+        ),
+        (
+            FitOptions {
+                smoothness: f64::NAN,
+                ..d()
+            },
+            "smoothness must be non-negative and finite, got NaN",
+        ),
+        (
+            FitOptions {
+                smoothness: -1e-9,
+                ..d()
+            },
+            "smoothness must be non-negative and finite, got -0.000000001",
+        ),
+        (
+            FitOptions {
+                loss_tolerance: f64::INFINITY,
+                ..d()
+            },
+            "loss_tolerance must be non-negative and finite, got inf",
+        ),
+        (
+            FitOptions {
+                relative_loss_tolerance: -1.0,
+                ..d()
+            },
+            "relative_loss_tolerance must be non-negative and finite, got -1",
+        ),
+        (
+            FitOptions {
+                relative_gradient_tolerance: f64::NAN,
+                ..d()
+            },
+            "relative_gradient_tolerance must be non-negative and finite, got NaN",
+        ),
+        (
+            FitOptions {
+                relative_decrease_tolerance: f64::NEG_INFINITY,
+                ..d()
+            },
+            "relative_decrease_tolerance must be non-negative and finite, got -inf",
+        ),
+        (
+            FitOptions {
+                identifiability_tolerance: f64::NAN,
+                ..d()
+            },
+            "identifiability_tolerance must be non-negative and finite, got NaN",
+        ),
+        (
+            FitOptions {
+                max_step: 0.0,
+                ..d()
+            },
+            "max_step must be positive and finite, got 0",
+        ),
+        (
+            FitOptions {
+                max_step: f64::INFINITY,
+                ..d()
+            },
+            "max_step must be positive and finite, got inf",
+        ),
+    ];
+    for (options, message) in bad {
+        let err = Fit::new(
+            &system,
+            &c.pins,
+            &mut newton,
+            vec![variable.clone()],
+            options,
+        )
+        .err()
+        .unwrap_or_else(|| panic!("accepted: {message}"));
+        assert!(matches!(err, AdjointError::Setup(_)), "{err}");
+        assert!(
+            err.to_string().contains(message),
+            "{err} (expected {message})"
+        );
+    }
+    let edges = [
+        FitOptions {
+            max_iterations: MAX_ITERATIONS_CEILING,
+            ..d()
+        },
+        FitOptions {
+            max_iterations: 0,
+            max_line_search: 0,
+            memory: 0,
+            ..d()
+        },
+        FitOptions {
+            max_line_search: FitOptions::MAX_LINE_SEARCH,
+            memory: FitOptions::MAX_MEMORY,
+            ..d()
+        },
+        FitOptions {
+            loss_tolerance: 0.0,
+            relative_loss_tolerance: 0.0,
+            relative_gradient_tolerance: 0.0,
+            relative_decrease_tolerance: 0.0,
+            identifiability_tolerance: 0.0,
+            smoothness: 0.0,
+            max_step: f64::MIN_POSITIVE,
+            ..d()
+        },
+    ];
+    for options in edges {
+        assert!(options.validate().is_ok(), "{options:?}");
+        assert!(
+            Fit::new(
+                &system,
+                &c.pins,
+                &mut newton,
+                vec![variable.clone()],
+                options
+            )
+            .is_ok()
+        );
+    }
+}
+
 #[test]
 fn young_s_modulus_and_thickness_together_are_reported_not_identifiable() {
     let c = cantilever(

@@ -504,7 +504,8 @@ def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e
     from ``X0``, goes through the membrane continuation of ``solve_static`` when ``membrane_continuation`` is
     set; the fit's solves start from it. Returns ``(X, info)``: the fitted equilibrium and a dict with
     ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``, ``newton_iterations`` (all
-    of them, the first equilibrium's included), ``stop``. The system keeps the fitted values."""
+    of them, the first equilibrium's included), ``stop``. The system keeps the fitted values.
+    ``max_iterations`` (L-BFGS iterations) is 0 to 1 000 000; 0 evaluates the start only."""
     return _hinge.fit(system._s, system._x(X0), system._x(target), _names("parameters", parameters),
                       _count("max_iterations", max_iterations), _number("gradient_tolerance", gradient_tolerance),
                       _flag("membrane_continuation", membrane_continuation))
@@ -514,7 +515,8 @@ def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
     """``hinge fit`` from Python: the scene keys (``"material.young"``, ``"material.thickness"``,
     ``"material.density"``, ``"bending.params.NAME"``, ``"bending.rest_angles"``) that make the scene's static
     equilibrium match ``target`` (a mesh file path, or an (n, 3) array). Returns ``(X, info)`` like ``fit``;
-    keys that cannot be told apart from the target raise ``ValueError``."""
+    keys that cannot be told apart from the target raise ``ValueError``. ``max_iterations`` is 0 to 1 000 000
+    and ``smoothness`` (the regularizer's weight, as ``hinge fit --smoothness``) non-negative."""
     if not isinstance(target, str):
         try:
             target = _np.ascontiguousarray(_np.asarray(target, dtype=_np.float64))
