@@ -157,6 +157,16 @@ pub enum StencilError {
         /// Its length.
         length: f64,
     },
+    /// The stencil's size (its largest coordinate difference) is outside
+    /// [`crate::hinge::STENCIL_SIZE_RANGE`]: its squared lengths and areas would leave double precision's
+    /// range, and a sound stencil would be reported as degenerate. Reported only where a check failed.
+    #[error(
+        "the stencil's size {size:e} (its largest coordinate difference) is outside the range the hinge formulas evaluate in double precision, 1e-60 to 1e60: rescale the mesh"
+    )]
+    OutOfRange {
+        /// Its largest coordinate difference.
+        size: f64,
+    },
     /// A triangle's vertex lies on the line of its opposite edge: its altitude, and the normal, are undefined.
     #[error(
         "altitude collapse in the {side}: stencil vertex x{vertex} is colinear with its opposite edge (relative altitude {relative_altitude:e})"

@@ -108,11 +108,13 @@ pub fn diff_of_products(a: f64, b: f64, c: f64, d: f64) -> f64 {
 
 /// The one degeneracy decision every pass shares: a triangle whose pivot cross product has squared norm
 /// `cross_sq` and whose longest edge has squared length `lmax_sq` is accepted when
-/// `|c| > DEGENERACY_TOLERANCE · l_max²` (tested on squares: no square root) and everything is finite.
+/// `|c| > DEGENERACY_TOLERANCE · l_max²` (tested on squares: no square root), everything is finite and
+/// `|c|²` is a normal number (a subnormal one has lost digits: a triangle about 1e-77 across, whose
+/// normal would come out inaccurate without a sign of it).
 #[inline(always)]
 pub fn accepts(cross_sq: f64, lmax_sq: f64) -> bool {
     let t = DEGENERACY_TOLERANCE * lmax_sq;
-    cross_sq > t * t && cross_sq.is_finite() && lmax_sq.is_finite()
+    cross_sq > t * t && cross_sq >= f64::MIN_POSITIVE && cross_sq.is_finite() && lmax_sq.is_finite()
 }
 
 /// The per-triangle quantities of the module docs.

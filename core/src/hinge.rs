@@ -103,7 +103,8 @@ impl HingeFrames {
     ///
     /// # Errors
     /// [`StencilError::NonFinite`], [`StencilError::ZeroLengthHingeEdge`] or
-    /// [`StencilError::AltitudeCollapse`].
+    /// [`StencilError::AltitudeCollapse`]; [`StencilError::OutOfRange`] instead of the last two when the
+    /// stencil's size is outside [`STENCIL_SIZE_RANGE`].
     #[inline]
     pub fn new(x: &Stencil) -> Result<Self, StencilError> {
         for (v, p) in x.iter().enumerate() {
@@ -122,14 +123,16 @@ impl HingeFrames {
             .max((x[0] - x[2]).norm_squared())
             .max((x[3] - x[2]).norm_squared());
         if !(hinge_len_sq > DEGENERACY_TOLERANCE * DEGENERACY_TOLERANCE * scale_sq) {
-            return Err(StencilError::ZeroLengthHingeEdge {
-                length: hinge_len_sq.sqrt(),
-            });
+            return Err(
+                out_of_range(x).unwrap_or(StencilError::ZeroLengthHingeEdge {
+                    length: hinge_len_sq.sqrt(),
+                }),
+            );
         }
-        let upper =
-            TriangleFrame::new(&x[0], &x[1], &x[2]).map_err(|e| collapse(HingeSide::Upper, e))?;
-        let lower =
-            TriangleFrame::new(&x[3], &x[2], &x[1]).map_err(|e| collapse(HingeSide::Lower, e))?;
+        let upper = TriangleFrame::new(&x[0], &x[1], &x[2])
+            .map_err(|e| out_of_range(x).unwrap_or_else(|| collapse(HingeSide::Upper, e)))?;
+        let lower = TriangleFrame::new(&x[3], &x[2], &x[1])
+            .map_err(|e| out_of_range(x).unwrap_or_else(|| collapse(HingeSide::Lower, e)))?;
         Ok(Self { upper, lower })
     }
 
@@ -161,6 +164,25 @@ impl HingeFrames {
 #[inline]
 pub fn signed_angle(n: &Vector3<f64>, nt: &Vector3<f64>, axis: &Vector3<f64>) -> f64 {
     n.cross(nt).dot(axis).atan2(n.dot(nt))
+}
+
+/// The sizes (largest coordinate difference within a stencil) the hinge formulas evaluate: beyond them the
+/// squared lengths and the cross products' squares (fourth powers of the size) over- or underflow double
+/// precision, and a sound stencil would be reported as degenerate. A test evaluates stencils scaled to both
+/// ends against the unscaled ones.
+pub const STENCIL_SIZE_RANGE: (f64, f64) = (1e-60, 1e60);
+
+/// [`StencilError::OutOfRange`] when the stencil's size is outside [`STENCIL_SIZE_RANGE`] (a stencil
+/// whose vertices all coincide has size 0 and is degenerate, not out of range). Called where a check
+/// failed, to say why.
+#[cold]
+fn out_of_range(x: &Stencil) -> Option<StencilError> {
+    let size = x
+        .iter()
+        .flat_map(|p| (0..3).map(move |a| (p[a] - x[1][a]).abs()))
+        .fold(0.0, f64::max);
+    let (lo, hi) = STENCIL_SIZE_RANGE;
+    (size > 0.0 && !(lo..=hi).contains(&size)).then_some(StencilError::OutOfRange { size })
 }
 
 fn collapse(side: HingeSide, e: DegenerateTriangle) -> StencilError {

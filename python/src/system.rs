@@ -808,6 +808,7 @@ impl PyStepper {
             Some(a) => system.positions(&a)?,
             None => vec![Vector3::zeros(); x.len()],
         };
+        Stepper::check_state(&x, &v).map_err(value_error)?;
         if !(density > 0.0 && density.is_finite()) {
             return Err(value_error(format!(
                 "density must be positive and finite, got {density}"

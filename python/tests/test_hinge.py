@@ -1372,3 +1372,27 @@ def test_numbers_of_any_numeric_kind_are_accepted():
     with pytest.raises(ValueError) as b:
         hinge.solve_static(plain, X, max_iterations=3.0, gradient_tolerance=1e-30)
     assert str(a.value) == str(b.value)
+
+
+def test_non_finite_states_and_targets_raise_value_error_naming_the_entry():
+    # Velocities, positions, loss gradients and targets that are not finite: ValueError naming the vertex,
+    # not a stepper that takes NaN in, nor a linear solver's "singular".
+    V, s = _system()
+    bad = V.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match=r"vertex 3: velocity coordinate 1 is not finite \(NaN\)"):
+        hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, V0=np.where(np.isnan(bad), np.nan, 0.0))
+    with pytest.raises(ValueError, match=r"vertex 3: position coordinate 1 is not finite \(NaN\)"):
+        hinge.ImplicitEuler(s, bad, dt=0.01, density=0.1)
+    V, F, s = cantilever()
+    bending = [n for n, _ in s.parameters() if n.endswith(".k")][0]
+    X, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
+    dloss = np.zeros_like(V)
+    dloss[5, 2] = np.inf
+    with pytest.raises(ValueError, match=r"entry 17 \(vertex 5, coordinate 2\) is not finite \(inf\)"):
+        hinge.adjoint_gradient(s, X, dloss, [bending])
+    target = X.copy()
+    target[1, 1] = -np.inf
+    with pytest.raises(ValueError, match=r"the target positions: entry 4 \(vertex 1, coordinate 1\)"):
+        hinge.fit(s, X, target, [bending], max_iterations=2)
+

@@ -60,6 +60,16 @@ pub enum AdjointError {
         /// Length needed.
         expected: usize,
     },
+    /// A non-finite entry in an input or in what a loss returned.
+    #[error("{what}: entry {index} (vertex {}, coordinate {}) is not finite ({value})", index / 3, index % 3)]
+    NotFinite {
+        /// Which input (the right-hand side, the targets, the loss gradient).
+        what: &'static str,
+        /// The entry (3·vertex + coordinate).
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
     /// [`Adjoint::solve`] or a gradient before a successful [`Adjoint::factor`].
     #[error("the Hessian has not been factored at this state")]
     NotFactored,
@@ -185,7 +195,8 @@ impl Adjoint {
     /// dofs. Needs a successful [`Adjoint::factor`].
     ///
     /// # Errors
-    /// [`AdjointError::NotFactored`], [`AdjointError::Length`], [`AdjointError::Linear`].
+    /// [`AdjointError::NotFactored`], [`AdjointError::Length`], [`AdjointError::NotFinite`] naming the
+    /// first non-finite entry of `b`, [`AdjointError::Linear`].
     pub fn solve(&mut self, b: &[f64]) -> Result<&[f64], AdjointError> {
         if !self.factored {
             return Err(AdjointError::NotFactored);
@@ -195,6 +206,13 @@ impl Adjoint {
                 what: "the right-hand side",
                 got: b.len(),
                 expected: 3 * self.n_vertices,
+            });
+        }
+        if let Some(index) = b.iter().position(|v| !v.is_finite()) {
+            return Err(AdjointError::NotFinite {
+                what: "the right-hand side",
+                index,
+                value: b[index],
             });
         }
         for (r, &d) in self.rhs.iter_mut().zip(&self.reduced.dofs) {
@@ -326,7 +344,7 @@ impl TargetLoss {
     ///
     /// # Errors
     /// [`AdjointError::Setup`] naming a vertex out of range; [`AdjointError::Length`] for a mismatched target
-    /// list.
+    /// list; [`AdjointError::NotFinite`] naming a non-finite target coordinate.
     pub fn evaluate(&self, x: &[Vector3<f64>], grad: &mut [f64]) -> Result<f64, AdjointError> {
         if self.vertices.len() != self.targets.len() {
             return Err(AdjointError::Length {
@@ -351,6 +369,13 @@ impl TargetLoss {
                     x.len()
                 )));
             };
+            if let Some(c) = (0..3).find(|&c| !t[c].is_finite()) {
+                return Err(AdjointError::NotFinite {
+                    what: "the target positions",
+                    index: 3 * v + c,
+                    value: t[c],
+                });
+            }
             let d = p - t;
             l += d.norm_squared();
             for c in 0..3 {
@@ -827,6 +852,18 @@ impl<'a> Fit<'a> {
             }
         }
         let l = loss(x, &mut self.grad_l)?;
+        if !l.is_finite() {
+            return Err(AdjointError::Setup(format!(
+                "the loss is not finite ({l}) at the equilibrium"
+            )));
+        }
+        if let Some(index) = self.grad_l.iter().position(|v| !v.is_finite()) {
+            return Err(AdjointError::NotFinite {
+                what: "the loss gradient",
+                index,
+                value: self.grad_l[index],
+            });
+        }
         self.adjoint.factor(system, x)?;
         self.adjoint.solve(&self.grad_l)?;
         let mut grad = vec![0.0; s.len()];
@@ -935,8 +972,9 @@ impl<'a> Fit<'a> {
     ///
     /// # Errors
     /// [`AdjointError`]: the first equilibrium fails, the Hessian at an equilibrium is not positive
-    /// definite, evaluation errors, [`SolverError::Interrupted`] (as [`AdjointError::Equilibrium`]). On
-    /// error the system holds the start values.
+    /// definite, evaluation errors, [`SolverError::Interrupted`] (as [`AdjointError::Equilibrium`]), a loss
+    /// that is not finite ([`AdjointError::Setup`]) or a loss gradient that is not
+    /// ([`AdjointError::NotFinite`]). On error the system holds the start values.
     pub fn run(
         &mut self,
         system: &mut System,

@@ -1492,7 +1492,8 @@ impl ImplicitEuler {
     /// A stepper for `system` with step `dt`, masses `masses`, pinned vertices `pins`.
     ///
     /// # Errors
-    /// [`SolverError::Input`] for a non-positive `dt` or masses of the wrong length; analysis errors.
+    /// [`SolverError::Input`] for a non-positive `dt`, masses of the wrong length or a mass that is negative
+    /// or not finite (naming its vertex); analysis errors.
     pub fn new(
         system: &System,
         dt: f64,
@@ -1508,6 +1509,15 @@ impl ImplicitEuler {
                 system.n_vertices()
             )));
         }
+        if let Some((i, m)) = masses
+            .iter()
+            .enumerate()
+            .find(|(_, m)| !(**m >= 0.0 && m.is_finite()))
+        {
+            return Err(SolverError::Input(format!(
+                "vertex {i}: mass {m} must be non-negative and finite"
+            )));
+        }
         let newton = Newton::new(system, &pins, solver, params)?;
         Ok(Self {
             dt,
@@ -1517,6 +1527,25 @@ impl ImplicitEuler {
             committed: None,
             time: 0.0,
         })
+    }
+
+    /// Checks that every position and velocity coordinate is finite (what every step checks first).
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] naming the first vertex with a coordinate that is not, in the slices'
+    /// numbering.
+    pub fn check_state(x: &[Vector3<f64>], v: &[Vector3<f64>]) -> Result<(), SolverError> {
+        for (what, list) in [("position", x), ("velocity", v)] {
+            for (i, p) in list.iter().enumerate() {
+                if let Some(c) = (0..3).find(|&c| !p[c].is_finite()) {
+                    return Err(SolverError::Input(format!(
+                        "vertex {i}: {what} coordinate {c} is not finite ({})",
+                        p[c]
+                    )));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// The time (s) of the state the stepper last accepted (0 for a new stepper; see
@@ -1585,6 +1614,7 @@ impl ImplicitEuler {
                 v.len()
             )));
         }
+        Self::check_state(x, v)?;
         let mut x_hat: Vec<Vector3<f64>> =
             x.iter().zip(v.iter()).map(|(p, w)| p + w * dt).collect();
         for &pv in self.pins.vertices() {

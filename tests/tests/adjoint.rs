@@ -898,6 +898,71 @@ fn a_stop_request_ends_a_fit_with_the_start_values_restored() {
     );
 }
 
+/// Non-finite inputs of the adjoint and the fit are typed errors naming the entry, never a NaN gradient
+/// or a linear solver's "singular" report: a right-hand side, a target coordinate, a custom loss that is
+/// not finite or whose gradient is not. A fit that fails so leaves the start values set.
+#[test]
+fn non_finite_adjoint_and_fit_inputs_are_named() {
+    let (c, mut system, mut newton, variable, target) = young_s_modulus_fit(2e8);
+    let n = c.rest.n_vertices();
+    let x = target.clone();
+    let mut adjoint = Adjoint::new(&system, &c.pins).unwrap();
+    adjoint.factor(&mut system, &x).unwrap();
+    let mut b = vec![0.0; 3 * n];
+    b[3 * 9 + 1] = f64::NAN;
+    let err = adjoint.solve(&b).unwrap_err();
+    assert!(
+        matches!(err, AdjointError::NotFinite { index: 28, .. }),
+        "{err}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "the right-hand side: entry 28 (vertex 9, coordinate 1) is not finite (NaN)"
+    );
+    b[28] = 0.5;
+    assert!(adjoint.solve(&b).is_ok());
+    let mut bad = target.clone();
+    bad[4].z = f64::NEG_INFINITY;
+    let err = TargetLoss::all(bad)
+        .evaluate(&x, &mut vec![0.0; 3 * n])
+        .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "the target positions: entry 14 (vertex 4, coordinate 2) is not finite (-inf)"
+    );
+    let before = system.parameter("bending.k").unwrap();
+    for (nan_loss, message) in [
+        (true, "the loss is not finite (NaN) at the equilibrium"),
+        (
+            false,
+            "the loss gradient: entry 5 (vertex 1, coordinate 2) is not finite (inf)",
+        ),
+    ] {
+        let mut fit = Fit::new(
+            &system,
+            &c.pins,
+            &mut newton,
+            vec![variable.clone()],
+            FitOptions::default(),
+        )
+        .unwrap();
+        let mut start = c.rest.positions().to_vec();
+        let err = fit
+            .run(&mut system, &mut start, &mut |_, g| {
+                g.fill(0.0);
+                if nan_loss {
+                    Ok(f64::NAN)
+                } else {
+                    g[5] = f64::INFINITY;
+                    Ok(1.0)
+                }
+            })
+            .unwrap_err();
+        assert_eq!(err.to_string(), message);
+        assert_eq!(system.parameter("bending.k").unwrap(), before);
+    }
+}
+
 /// Fit options out of range are refused by `Fit::new` with a setup error naming the option and its value;
 /// the edges of each range are accepted.
 #[test]

@@ -247,7 +247,9 @@ fn rigid_motion_and_uniform_scaling() {
         assert!(rel_error(dm.gradient.as_slice(), g_rot.as_slice()) < 1e-12);
         assert!(rel_error(dm.hessian.as_slice(), h_rot.as_slice()) < 1e-12);
 
-        for s in [3.7e-4, 2.9e5] {
+        // The ends of `STENCIL_SIZE_RANGE` (the sample's stencils are of size about 1): evaluated as
+        // unscaled.
+        for s in [3.7e-4, 2.9e5, 1e-59, 1e59] {
             let scaled = x.map(|p| p * s);
             let ds = hinge_angle_hessian(&scaled).unwrap();
             assert!((ds.theta - d.theta).abs() < 1e-12);
@@ -294,6 +296,30 @@ fn degenerate_stencils_give_typed_errors() {
     assert!(matches!(
         hinge_angle(&x),
         Err(StencilError::ZeroLengthHingeEdge { .. })
+    ));
+    // Beyond the size range the checks fail for rounding's sake, and say so: a sound stencil scaled to
+    // 1e300 (its squared lengths overflow) or 1e-300 (they underflow to zero) is out of range, not a
+    // collapsed edge; a collapsed edge at an ordinary size is still one.
+    for s in [1e300, 1e-300, 1e80, 1e-80] {
+        let x = good.map(|p| p * s);
+        for r in [
+            hinge_angle(&x).map(|_| ()),
+            hinge_angle_hessian(&x).map(|_| ()),
+            hinge_angle_autodiff(&x).map(|_| ()),
+        ] {
+            match r {
+                Err(StencilError::OutOfRange { size }) => {
+                    assert!(size > 0.5 * s && size < 2.0 * s, "{size} for scale {s}")
+                }
+                other => panic!("scale {s}: expected out of range, got {other:?}"),
+            }
+        }
+    }
+    let mut x = good.map(|p| p * 1e300);
+    x[2] = x[1];
+    assert!(matches!(
+        hinge_angle(&x),
+        Err(StencilError::OutOfRange { .. })
     ));
     // Non-finite input, and the autodiff path rejects the same stencils.
     let mut x = good;
