@@ -107,7 +107,7 @@ pub struct MeshSpec {
     /// Named grid resolutions (cells along x and y) that `--resolution 1, 2, …` selects; without them
     /// `--resolution N` sets N cells along x.
     pub resolutions: Option<Vec<[usize; 2]>>,
-    /// Grid size (m).
+    /// Grid size (m), positive along both axes.
     #[serde(default = "unit_size")]
     pub size: [f64; 2],
     /// Position of the grid's first vertex.
@@ -427,7 +427,8 @@ pub struct SolverSpec {
     /// Newton iteration limit per step (1 to 1 000 000; a static solve allows itself at least 2 000).
     #[serde(default = "default_iterations")]
     pub max_iterations: usize,
-    /// Newton gradient tolerance.
+    /// Newton gradient tolerance: stop when ‖∇F‖ ≤ this (N; non-negative, 0 leaves convergence to the
+    /// relative and step tests).
     #[serde(default = "default_tolerance")]
     pub gradient_tolerance: f64,
     /// A frame whose step fails is retried in substeps, halving down to `dt / 2^max_substep_halvings`
@@ -779,6 +780,13 @@ impl Scene {
                 self.solver.globalization
             ));
         }
+        // 0 leaves convergence to the relative and step tests; a negative or NaN tolerance is a typo.
+        if !(self.solver.gradient_tolerance >= 0.0 && self.solver.gradient_tolerance.is_finite()) {
+            return Err(format!(
+                "solver.gradient_tolerance: must be non-negative and finite, got {}",
+                Num(self.solver.gradient_tolerance)
+            ));
+        }
         for (key, v) in [
             (
                 "solver.relative_gradient_tolerance",
@@ -869,6 +877,15 @@ impl Scene {
                     "mesh: give exactly one of `cells` (a grid), `obj` (a file) or `shape`".into(),
                 );
             }
+        }
+        for (axis, &v) in ["x", "y"].iter().zip(&self.mesh.size) {
+            positive(&format!("mesh.size ({axis})"), v)?;
+        }
+        if let Some(c) = self.mesh.origin.iter().position(|v| !v.is_finite()) {
+            return Err(format!(
+                "mesh.origin: coordinate {c} must be finite, got {}",
+                Num(self.mesh.origin[c])
+            ));
         }
         if !["forward", "backward", "alternating"].contains(&self.mesh.diagonal.as_str()) {
             return Err(format!(

@@ -1835,6 +1835,31 @@ fn extreme_scene_values_run_or_fail_in_one_short_line() {
             "thickness = 1e120",
             "thickness 1e120 make a bending stiffness of inf",
         ),
+        (
+            "gradient_tolerance = 1e-6",
+            "gradient_tolerance = -1e-6",
+            "solver.gradient_tolerance: must be non-negative and finite, got -1e-6",
+        ),
+        (
+            "gradient_tolerance = 1e-6",
+            "gradient_tolerance = nan",
+            "solver.gradient_tolerance: must be non-negative and finite, got NaN",
+        ),
+        (
+            "size = [1.0, 1.0]",
+            "size = [1.0, 0.0]",
+            "mesh.size (y): must be positive and finite, got 0",
+        ),
+        (
+            "size = [1.0, 1.0]",
+            "size = [-1.0, 1.0]",
+            "mesh.size (x): must be positive and finite, got -1",
+        ),
+        (
+            "origin = [-0.5, -0.5, 0.3]",
+            "origin = [-0.5, inf, 0.3]",
+            "mesh.origin: coordinate 1 must be finite, got inf",
+        ),
     ] {
         let path = scene_variant(&dir, "bad.toml", "drape", &[(from, to)]);
         let line = one_line_failure(&["run", path.to_str().unwrap(), "--frames", "1"]);
