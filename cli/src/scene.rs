@@ -1022,17 +1022,49 @@ impl Scene {
             .collect()
     }
 
-    /// The pin groups of `[[pins.groups]]`, checked.
+    /// The pin groups of `[[pins.groups]]`, checked: a vertex follows at most one group, and none of them
+    /// is one `[pins]` holds fixed (either way one of the two would be ignored without a word).
     ///
     /// # Errors
-    /// A one-line message naming the group and key.
+    /// A one-line message naming the group and key, or the first vertex two groups (or a group and the
+    /// fixed pins) share.
     pub fn pin_groups(&self, rest: &TriMesh) -> Result<Vec<PinGroup>, String> {
-        self.pins
+        let groups = self
+            .pins
             .groups
             .iter()
             .enumerate()
             .map(|(i, g)| pin_group(i, g, rest))
-            .collect()
+            .collect::<Result<Vec<_>, _>>()?;
+        if groups.is_empty() {
+            return Ok(groups);
+        }
+        let fixed = self.fixed_pins(rest)?;
+        // Owner of each vertex: usize::MAX for none, groups.len() for the fixed pins.
+        let mut owner = vec![usize::MAX; rest.n_vertices()];
+        for &v in &fixed {
+            if let Some(o) = owner.get_mut(v) {
+                *o = groups.len();
+            }
+        }
+        for (i, g) in groups.iter().enumerate() {
+            for &v in &g.vertices {
+                match owner[v] {
+                    usize::MAX => owner[v] = i,
+                    o if o == groups.len() => {
+                        return Err(format!(
+                            "pins.groups[{i}]: vertex {v} is also held fixed by [pins] (a vertex follows one motion or none)"
+                        ));
+                    }
+                    o => {
+                        return Err(format!(
+                            "pins.groups[{i}]: vertex {v} is also in pins.groups[{o}] (a vertex follows one motion or none)"
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(groups)
     }
 
     /// The pins without a motion (`[pins]` `vertices`, `x_at_most`, `clamp_columns`).

@@ -2798,6 +2798,16 @@ fn pin_groups_twist_drag_and_release() {
             "[[pins.groups]]\nvertices = [0]\nmotion = { kind = \"fixed\" }\nrelease = -1.0",
             "pins.groups[0].release",
         ),
+        // A vertex follows one motion or none: two groups, or a group and the fixed pins, sharing one
+        // would have one of them ignored without a word.
+        (
+            "[[pins.groups]]\nvertices = [3, 7]\nmotion = { kind = \"fixed\" }\n[[pins.groups]]\nvertices = [5, 7]\nmotion = { kind = \"translation\", velocity = [0.0, 0.0, 0.1] }",
+            "pins.groups[1]: vertex 7 is also in pins.groups[0] (a vertex follows one motion or none)",
+        ),
+        (
+            "[pins]\nvertices = [4]\n[[pins.groups]]\nvertices = [4]\nmotion = { kind = \"fixed\" }",
+            "pins.groups[0]: vertex 4 is also held fixed by [pins]",
+        ),
     ] {
         assert_scene_error(&scene_with(&dir, "bad", "drape", extra), needle);
     }
