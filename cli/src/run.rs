@@ -545,6 +545,7 @@ pub fn equilibrium_observed(
         names,
         warn.as_deref_mut(),
     );
+    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
     // 1e9 at h = 0.1 mm) take hundreds of damped Newton steps to swing down: statics gets a larger budget.
     let params = NewtonParams {
@@ -875,6 +876,65 @@ fn warn_stiff_rest(
     }
 }
 
+/// The set-up warning of a scene whose mesh starts inside an obstacle: one line per such obstacle (how many
+/// vertices of a face are inside its surface, the deepest and by how much), to `warn` or on stderr as
+/// `hinge: warning: …`. A penalty contact pushes them out at once, with a force of its stiffness times
+/// that depth (the cloth is thrown off); a barrier contact (skipped here) refuses the state with an error
+/// of its own.
+fn warn_start_inside(
+    scene: &Scene,
+    obstacles: &[(Obstacle, Option<Motion>)],
+    rest: &TriMesh,
+    names: Option<&FileNumbering>,
+    mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
+) {
+    let mut referenced = vec![false; rest.n_vertices()];
+    for t in rest.triangles() {
+        for &v in t {
+            referenced[v] = true;
+        }
+    }
+    for (i, (obstacle, _)) in obstacles.iter().enumerate() {
+        if scene.obstacles.get(i).is_some_and(|o| o.model == "barrier") {
+            continue;
+        }
+        let distance = |p: &Vector3<f64>| match obstacle {
+            Obstacle::Sphere { center, radius } => (p - center).norm() - radius,
+            Obstacle::Plane { point, normal } => normal.dot(&(p - point)),
+        };
+        let mut inside = 0usize;
+        let mut deepest = (0usize, 0.0f64);
+        for (v, p) in rest.positions().iter().enumerate() {
+            let d = distance(p);
+            if referenced[v] && d < 0.0 {
+                inside += 1;
+                if d < deepest.1 {
+                    deepest = (v, d);
+                }
+            }
+        }
+        if inside == 0 {
+            continue;
+        }
+        let line = format!(
+            "obstacles[{i}]: {inside} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
+             the contact pushes {} out at once",
+            if inside == 1 {
+                "vertex starts"
+            } else {
+                "vertices start"
+            },
+            names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
+            -deepest.1,
+            if inside == 1 { "it" } else { "them" },
+        );
+        match warn.as_deref_mut() {
+            Some(w) => w(&line),
+            None => eprintln!("hinge: warning: {line}"),
+        }
+    }
+}
+
 /// What a caller hooks into a run ([`simulate_observed`], [`equilibrium_observed`]); the default hooks
 /// nothing and prints set-up warnings on stderr.
 #[derive(Default)]
@@ -1004,6 +1064,7 @@ pub fn simulate_observed(
         names,
         warn.as_deref_mut(),
     );
+    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let groups = scene.pin_groups(rest)?;
     let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
     fixed.extend(rest.unreferenced_vertices());

@@ -4142,3 +4142,74 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// A mesh that starts inside a penalty obstacle is warned of, one line per obstacle (how many vertices,
+/// the deepest and its depth), and the run goes on; the shipped drape gets no warning, and a barrier
+/// obstacle its own error instead (one line, no warning before it).
+#[test]
+fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
+    let dir = tmp("start_inside");
+    let run = |path: &Path| {
+        let o = hinge(&[
+            "run",
+            path.to_str().unwrap(),
+            "--resolution",
+            "6",
+            "--frames",
+            "1",
+            "--no-frames",
+            "--out",
+            dir.join("out").to_str().unwrap(),
+        ]);
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let shipped = scene_variant(&dir, "shipped.toml", "drape", &[]);
+    assert_eq!(run(&shipped), (true, String::new()));
+    // The 7 × 7 grid at z = 0.3 inside a sphere of radius 2 about the origin: its centre vertex (24) is
+    // the deepest, 2 − 0.3 below the surface.
+    let sphere = scene_variant(
+        &dir,
+        "sphere.toml",
+        "drape",
+        &[("radius = 0.25", "radius = 2.0")],
+    );
+    let (ok, err) = run(&sphere);
+    assert!(ok, "{err}");
+    assert_eq!(
+        err,
+        "hinge: warning: obstacles[0]: 49 vertices start inside it, the deepest (vertex 24) 1.700e0 m below \
+         its surface; the contact pushes them out at once\n"
+    );
+    // A second obstacle, a plane above the grid: both warned of, in order.
+    let two = scene_with(
+        &dir,
+        "two",
+        "drape",
+        "[[obstacles]]\nkind = \"plane\"\npoint = [0.0, 0.0, 0.5]\nnormal = [0.0, 0.0, 2.0]\nstiffness = 2e3",
+    );
+    let (ok, err) = run(&two);
+    assert!(ok, "{err}");
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].starts_with("hinge: warning: obstacles[1]: 49 vertices start inside it, the deepest (vertex 0) 2.000e-1 m"),
+        "{err}"
+    );
+    let barrier = scene_variant(
+        &dir,
+        "barrier.toml",
+        "drape",
+        &[("radius = 0.25", "radius = 2.0\nmodel = \"barrier\"")],
+    );
+    let (ok, err) = run(&barrier);
+    assert!(!ok);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("hinge: initial state: ") && err.contains("inside the obstacle"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -1396,3 +1396,28 @@ def test_non_finite_states_and_targets_raise_value_error_naming_the_entry():
     with pytest.raises(ValueError, match=r"the target positions: entry 4 \(vertex 1, coordinate 1\)"):
         hinge.fit(s, X, target, [bending], max_iterations=2)
 
+
+def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
+    # A folded pair below a contact plane at z = 1 (the pair's vertices at z = 0.5 … 0.88): every vertex
+    # starts inside it, the first of the four at z = 0.5 is the deepest.
+    obj = tmp_path / "pair.obj"
+    obj.write_text(
+        "v 0.4 -0.9 0.5\nv 1 0 0.5\n"
+        f"v 0.5 {0.8 * np.cos(0.5)} {0.5 + 0.8 * np.sin(0.5)}\n"
+        "v 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n"
+    )
+    scene = tmp_path / "pair.toml"
+    scene.write_text(
+        'name = "pair"\nframes = 1\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
+        "[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n"
+        '[bending]\nenergy = "tan-bending"\n'
+        '[[obstacles]]\nkind = "plane"\npoint = [0.0, 0.0, 1.0]\nnormal = [0.0, 0.0, 1.0]\nstiffness = 2e3\n'
+    )
+    with pytest.warns(hinge.MeshWarning) as caught:
+        hinge.run_scene(str(scene))
+    messages = [str(w.message) for w in caught]
+    assert messages == [
+        "obstacles[0]: 5 vertices start inside it, the deepest (vertex 0) 5.000e-1 m below its surface; "
+        "the contact pushes them out at once (vertices from 0)"
+    ], messages
+
