@@ -545,7 +545,6 @@ pub fn equilibrium_observed(
         names,
         warn.as_deref_mut(),
     );
-    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     // From the flat state, thin strips with a stiff membrane (membrane/bending stiffness ratio 12/h², about
     // 1e9 at h = 0.1 mm) take hundreds of damped Newton steps to swing down: statics gets a larger budget.
     let params = NewtonParams {
@@ -557,6 +556,8 @@ pub fn equilibrium_observed(
     newton.set_observer(observer);
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
+    // After the check: a state the energies refuse is the one line, without a warning before it.
+    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let (parameter, stages) = membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -1064,7 +1065,6 @@ pub fn simulate_observed(
         names,
         warn.as_deref_mut(),
     );
-    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let groups = scene.pin_groups(rest)?;
     let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
     fixed.extend(rest.unreferenced_vertices());
@@ -1128,6 +1128,8 @@ pub fn simulate_observed(
     let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     check_initial_state(&mut system, &x, names)?;
+    // After the check: a state the energies refuse is the one line, without a warning before it.
+    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,

@@ -200,7 +200,7 @@ pub struct BendingSpec {
     pub plasticity: Option<PlasticitySpec>,
     /// Rest angles to start from, one per hinge in hinge order (whitespace-separated numbers in a text
     /// file, relative to the scene file): a plastic run's `rest_angles_NNNN.txt`, to restart with its
-    /// creases. Unset: the rest mesh's own.
+    /// creases. Unset: the rest mesh's own. Radians in [−π, π].
     #[serde(default)]
     pub rest_angles: Option<PathBuf>,
 }

@@ -2678,8 +2678,18 @@ fn plastic_bending_writes_its_rest_angles_and_restarts_from_them() {
             "[bending]\nrest_angles = \"short.txt\"",
             "bending.rest_angles",
         ),
+        // The run's own rest angles with one given in degrees.
+        (
+            "degrees",
+            "[bending]\nrest_angles = \"degrees.txt\"",
+            "bending.rest_angles: parameter `theta_bar`: value of hinge 1 is 90 rad, outside [−π, π]",
+        ),
     ] {
         std::fs::write(dir.join("short.txt"), "0.1 0.2\n").unwrap();
+        let mut degrees = last.clone();
+        degrees[1] = 90.0;
+        let text: Vec<String> = degrees.iter().map(f64::to_string).collect();
+        std::fs::write(dir.join("degrees.txt"), text.join("\n")).unwrap();
         let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout).to_string();
         let text = if extra.starts_with("[bending]\n") {
             text.replace("[bending]", extra)

@@ -1346,6 +1346,9 @@ def _system():
         (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]]), energy=("tan-bending",)), "energy must be"),
         (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).set_step(V, None), "dt must be a number"),
         (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).set_rest_angles({}), "theta_bar must be"),
+        # Rest angles are angles in radians, in [-pi, pi]: degrees are refused.
+        (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 4], [4, 1, 5]])).set_rest_angles(np.array([90.0])),
+         r"value of hinge 0 is 90 rad, outside \[−π, π\]"),
         (lambda V, s: hinge.BendingModel(V, np.array([[0, 1, 2]])).evaluate_into(V, None), "g_out must be"),
     ],
 )
@@ -1420,4 +1423,11 @@ def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
         "obstacles[0]: 5 vertices start inside it, the deepest (vertex 0) 5.000e-1 m below its surface; "
         "the contact pushes them out at once (vertices from 0)"
     ], messages
+
+
+def test_a_static_solve_of_gravity_alone_names_the_zero_hessian():
+    V, F = sheet(3, 3, 40)
+    s = hinge.System(V, F).add_gravity(density=0.1)
+    with pytest.raises(ValueError, match="the Hessian is zero on every free dof at iteration 0 while the gradient is not"):
+        hinge.solve_static(s, V)
 

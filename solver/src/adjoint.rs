@@ -60,6 +60,10 @@ pub enum AdjointError {
         /// Length needed.
         expected: usize,
     },
+    /// An energy refused the parameter values a fit set (a rest angle outside [−π, π], say). Within the
+    /// line search such a trial counts as failed and the step is halved; at the start it is this error.
+    #[error("{0}")]
+    OutOfDomain(EvalError),
     /// A non-finite entry in an input or in what a loss returned.
     #[error("{what}: entry {index} (vertex {}, coordinate {}) is not finite ({value})", index / 3, index % 3)]
     NotFinite {
@@ -842,7 +846,10 @@ impl<'a> Fit<'a> {
         loss: &mut LossFn,
     ) -> Result<(f64, Vec<f64>), AdjointError> {
         let u = self.unpack(s);
-        self.apply(system, &u)?;
+        self.apply(system, &u).map_err(|e| match e {
+            AdjointError::Eval(e) => AdjointError::OutOfDomain(e),
+            e => e,
+        })?;
         self.equilibria += 1;
         match self.newton.minimize(system, x, None) {
             Ok(st) => self.newton_iterations += st.iterations,
@@ -966,7 +973,8 @@ impl<'a> Fit<'a> {
     /// Runs L-BFGS from the variables' start values and the state `x` (an initial guess of the first
     /// equilibrium; on success it holds the fitted equilibrium, and the system the fitted parameters).
     /// Every evaluation solves the equilibrium from the last accepted one (warm start). A trial whose
-    /// equilibrium fails to converge counts as a failed line-search step (the step is halved); a failure
+    /// equilibrium fails to converge, or whose parameter values an energy refuses
+    /// ([`AdjointError::OutOfDomain`]), counts as a failed line-search step (the step is halved); a failure
     /// at the start is an error, and so is a solve stopped by the Newton solver's stop flag
     /// ([`Newton::set_stop`]): the fit ends at once.
     ///
@@ -1056,7 +1064,8 @@ impl<'a> Fit<'a> {
                     }
                     Ok(_)
                     | Err(AdjointError::Equilibrium(_))
-                    | Err(AdjointError::NotMinimum { .. }) => t *= 0.5,
+                    | Err(AdjointError::NotMinimum { .. })
+                    | Err(AdjointError::OutOfDomain(_)) => t *= 0.5,
                     Err(e) => {
                         restore(self, system);
                         return Err(e);

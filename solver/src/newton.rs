@@ -424,6 +424,14 @@ pub enum SolverError {
         /// What was done.
         stats: Box<NewtonStats>,
     },
+    /// The Hessian of F is zero on every free dof while its gradient is not: F is linear there, and Newton
+    /// has neither a step nor a scale to shift by (a static solve of gravity alone, with no energy to hold
+    /// the mesh).
+    #[error("the Hessian is zero on every free dof at iteration {} while the gradient is not (norm {:e}): nothing resists the load there (gravity or forces with no stiffness against them, or no energy acting on these vertices?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    ZeroHessian {
+        /// What was done before.
+        stats: Box<NewtonStats>,
+    },
     /// Inputs that do not fit (sizes, non-finite time step).
     #[error("{0}")]
     Input(String),
@@ -469,6 +477,7 @@ impl SolverError {
             | SolverError::NotConverged { stats }
             | SolverError::Stalled { stats }
             | SolverError::Stuck { stats }
+            | SolverError::ZeroHessian { stats }
             | SolverError::Interrupted { stats } => (**stats).clone(),
             SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
         }
@@ -979,13 +988,25 @@ impl Newton {
         *shift = damping;
         let mut attempts = 0;
         loop {
-            let max_diagonal = self
+            let diagonal = self
                 .reduced
                 .diag
                 .iter()
                 .map(|&k| self.values[k].abs())
-                .fold(0.0, f64::max)
-                .max(f64::MIN_POSITIVE);
+                .fold(0.0, f64::max);
+            // The shifts' scale. A zero diagonal leaves the largest entry; a zero matrix has no scale and no
+            // Newton step (F is linear on the free dofs here, and the gradient is not zero).
+            let max_diagonal = if diagonal > 0.0 {
+                diagonal.max(f64::MIN_POSITIVE)
+            } else {
+                let largest = self.values.iter().fold(0.0, |m: f64, v| m.max(v.abs()));
+                if !(largest > 0.0) {
+                    return Err(SolverError::ZeroHessian {
+                        stats: Box::new(s.stats.clone()),
+                    });
+                }
+                largest
+            };
             self.shifted.clone_from(&self.values);
             if *shift > 0.0 {
                 for &k in &self.reduced.diag {

@@ -1370,6 +1370,113 @@ fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
     assert!(rms < 0.05, "{rms}");
 }
 
+/// Rest angles live in [−π, π] (the range of θ; `BendingModel::set_rest_angles` refuses others). A fit of
+/// them whose line search tries values beyond (a loss scaled by 1e6 and a step cap of 20 rad: the first
+/// trial sets every rest angle to 20 rad) halves those trials instead of failing and lowers the loss; a
+/// start beyond π is `AdjointError::OutOfDomain` at once, naming the value.
+#[test]
+fn a_fit_trial_with_rest_angles_beyond_pi_is_halved_not_fatal() {
+    let rest = grid(8, 6, 0.2, 0.15, Diagonal::Alternating).unwrap();
+    let c = cantilever(rest, 0.2 / 8.0, 2e8);
+    let mut system = cantilever_system(&c, false);
+    let hinges = hinge_core::topology::hinges(&c.rest).unwrap();
+    let x0 = c.rest.positions();
+    let truth: Vec<f64> = hinges
+        .iter()
+        .map(|h| {
+            let (a, b) = (x0[h.vertices[1]], x0[h.vertices[2]]);
+            if (a.x - 0.1).abs() < 1e-9 && (b.x - 0.1).abs() < 1e-9 {
+                0.6
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    system.set_parameter("bending.theta_bar", &truth).unwrap();
+    let mut newton = tight_newton(&system, &c.pins);
+    let mut target = x0.to_vec();
+    newton.minimize(&mut system, &mut target, None).unwrap();
+    system
+        .set_parameter("bending.theta_bar", &vec![0.0; truth.len()])
+        .unwrap();
+    // Out of range: refused by name, the angles unchanged.
+    let mut beyond = vec![0.0; truth.len()];
+    beyond[3] = 3.2;
+    let err = system
+        .set_parameter("bending.theta_bar", &beyond)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("value of hinge 3 is 3.2 rad, outside [−π, π]"),
+        "{err}"
+    );
+    assert_eq!(
+        system.parameter("bending.theta_bar").unwrap(),
+        vec![0.0; truth.len()]
+    );
+    let pi = std::f64::consts::PI;
+    for edge in [pi, -pi] {
+        let mut v = vec![0.0; truth.len()];
+        v[0] = edge;
+        system.set_parameter("bending.theta_bar", &v).unwrap();
+    }
+    system
+        .set_parameter("bending.theta_bar", &vec![0.0; truth.len()])
+        .unwrap();
+    // One scalar variable setting every hinge's rest angle (the crease target's best uniform fit).
+    let variable = |start: f64| FitVariable {
+        name: "crease".into(),
+        start: vec![start],
+        positive: false,
+        links: vec![Link::Value {
+            parameter: "bending.theta_bar".into(),
+        }],
+    };
+    let loss = TargetLoss::all(target);
+    let scaled = |x: &[Vector3<f64>], g: &mut [f64]| -> Result<f64, AdjointError> {
+        let l = loss.evaluate(x, g)?;
+        g.iter_mut().for_each(|v| *v *= 1e6);
+        Ok(1e6 * l)
+    };
+    let options = FitOptions {
+        max_iterations: 100,
+        max_step: 20.0,
+        ..FitOptions::default()
+    };
+    let mut x = x0.to_vec();
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![variable(0.0)],
+        options.clone(),
+    )
+    .unwrap();
+    let r = fit
+        .run(&mut system, &mut x, &mut |x, g| scaled(x, g))
+        .unwrap();
+    drop(fit);
+    println!(
+        "rest angle fit with trials beyond π: {} iterations, {} equilibria, value {} ({})",
+        r.iterations, r.equilibria, r.values[0][0], r.stop
+    );
+    // A scalar acting on every hinge cannot make the crease alone: it fits the best uniform angle, which
+    // lies well inside the range, and the loss falls.
+    assert!(r.values[0][0].abs() < pi, "{:?}", r.values);
+    assert!(r.loss < r.initial_loss, "{} {}", r.loss, r.initial_loss);
+    let before = system.parameter("bending.theta_bar").unwrap();
+    let mut fit = Fit::new(&system, &c.pins, &mut newton, vec![variable(4.0)], options).unwrap();
+    let err = fit
+        .run(&mut system, &mut x0.to_vec(), &mut |x, g| scaled(x, g))
+        .unwrap_err();
+    assert!(matches!(err, AdjointError::OutOfDomain(_)), "{err}");
+    assert!(
+        err.to_string().contains("is 4 rad, outside [−π, π]"),
+        "{err}"
+    );
+    assert_eq!(system.parameter("bending.theta_bar").unwrap(), before);
+}
+
 #[test]
 fn fitted_rest_angles_of_an_irregular_sheet_reproduce_its_shape_but_are_not_unique() {
     // An irregular sheet (random diagonals, jittered, vertices renumbered, corners rotated) 0.2 m × 0.15 m,

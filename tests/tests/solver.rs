@@ -161,6 +161,54 @@ fn lu_gives_the_same_bits_on_any_thread_count() {
     }
 }
 
+/// A static solve of gravity alone (nothing holds the cloth, F is linear): the typed `ZeroHessian` error
+/// with the gradient norm, after one factorization attempt at most, positions untouched. Before, the shift
+/// ladder scaled by the smallest normal number (shifts of 2e-316) and the error said "matrix is singular".
+/// Shaken by the cloth's own bending, or with inertia, the same cloth solves as before.
+#[test]
+fn a_zero_hessian_is_named_not_shifted_by_denormals() {
+    let rest = cloth(4);
+    let n = rest.n_vertices();
+    let gravity = || {
+        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap())
+    };
+    let mut sys = System::new(n, vec![gravity() as Box<dyn Energy>]).unwrap();
+    let mut newton = Newton::new(
+        &sys,
+        &Pins::default(),
+        Box::new(FaerLlt::default()),
+        NewtonParams::default(),
+    )
+    .unwrap();
+    let mut x = rest.positions().to_vec();
+    let x0 = x.clone();
+    let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
+    assert!(matches!(err, SolverError::ZeroHessian { .. }), "{err}");
+    let stats = err.stats();
+    assert_eq!(stats.iterations, 0);
+    assert!(stats.factorizations <= 1, "{stats:?}");
+    assert_eq!(stats.max_shift, 0.0);
+    // ‖∇F‖ = total weight / √n per dof… here simply the norm of the lumped weights.
+    let weight: f64 = lumped_masses(&rest, 0.1)
+        .iter()
+        .map(|m| (m * 9.81).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!((stats.gradient_norms[0] - weight).abs() <= 1e-12 * weight);
+    assert!(err.to_string().starts_with(
+        "the Hessian is zero on every free dof at iteration 0 while the gradient is not"
+    ));
+    assert_eq!(x, x0);
+    // With inertia the Hessian is m/Δt² on the diagonal: one exact step.
+    let inertia = Inertia {
+        masses: lumped_masses(&rest, 0.1),
+        x_hat: x0.clone(),
+        dt: 0.01,
+    };
+    let stats = newton.minimize(&mut sys, &mut x, Some(&inertia)).unwrap();
+    assert_eq!(stats.iterations, 1);
+}
+
 #[test]
 fn newton_solves_a_quadratic_in_one_step() {
     let rest = cloth(6);

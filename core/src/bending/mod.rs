@@ -395,8 +395,8 @@ impl<P: HingePsi> BendingModel<P> {
     /// other rest quantities stay). Bending plasticity updates θ̄ this way.
     ///
     /// # Errors
-    /// [`EvalError::Psi`] (parameter `theta_bar`) for a wrong length or a value that is not finite. On error
-    /// nothing changes.
+    /// [`EvalError::Psi`] (parameter `theta_bar`) for a wrong length or a value that is not finite or
+    /// outside [−π, π] (the range of θ). On error nothing changes.
     pub fn set_rest_angles(&mut self, theta_bar: &[f64]) -> Result<(), EvalError> {
         let bad = |message: String| {
             EvalError::Psi(crate::psi::PsiError {
@@ -414,6 +414,18 @@ impl<P: HingePsi> BendingModel<P> {
         if let Some(i) = theta_bar.iter().position(|t| !t.is_finite()) {
             return Err(bad(format!(
                 "value of hinge {i} is not finite ({})",
+                theta_bar[i]
+            )));
+        }
+        // θ lies in (−π, π]: a rest angle beyond is no angle the hinge can take (and a tan energy would
+        // wrap it around silently), most often degrees given as radians.
+        if let Some(i) = theta_bar
+            .iter()
+            .position(|t| t.abs() > std::f64::consts::PI)
+        {
+            return Err(bad(format!(
+                "value of hinge {i} is {} rad, outside [−π, π], the signed hinge angle's range (degrees \
+                 given as radians?)",
                 theta_bar[i]
             )));
         }
