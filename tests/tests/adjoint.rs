@@ -1342,13 +1342,12 @@ fn fit_rest_angles(
     (r, target)
 }
 
-#[test]
-fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
-    // A sheet clamped along x = 0 with a crease across it (rest angle 0.6 rad on the hinges of the column
-    // of edges at x = 0.1 m); the equilibrium under gravity is the target, the fit starts flat.
+/// A sheet 0.2 m × 0.15 m clamped along x = 0, its system, and a crease across it: rest angle 0.6 rad on
+/// the hinges of the column of edges at x = 0.1 m, 0 elsewhere.
+fn creased_sheet() -> (Cantilever, System, Vec<f64>) {
     let rest = grid(8, 6, 0.2, 0.15, Diagonal::Alternating).unwrap();
     let c = cantilever(rest, 0.2 / 8.0, 2e8);
-    let mut system = cantilever_system(&c, false);
+    let system = cantilever_system(&c, false);
     let hinges = hinge_core::topology::hinges(&c.rest).unwrap();
     let x0 = c.rest.positions();
     let truth: Vec<f64> = hinges
@@ -1362,6 +1361,13 @@ fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
             }
         })
         .collect();
+    (c, system, truth)
+}
+
+#[test]
+fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
+    // The crease's equilibrium under gravity is the target, the fit starts flat.
+    let (c, mut system, truth) = creased_sheet();
     assert!(truth.iter().filter(|t| **t != 0.0).count() >= 5);
     let m = truth.len();
     let (r, _) = fit_rest_angles(&c, &mut system, &truth, "crease");
@@ -1376,22 +1382,8 @@ fn fitting_recovers_the_rest_angles_of_a_pre_creased_sheet() {
 /// start beyond π is `AdjointError::OutOfDomain` at once, naming the value.
 #[test]
 fn a_fit_trial_with_rest_angles_beyond_pi_is_halved_not_fatal() {
-    let rest = grid(8, 6, 0.2, 0.15, Diagonal::Alternating).unwrap();
-    let c = cantilever(rest, 0.2 / 8.0, 2e8);
-    let mut system = cantilever_system(&c, false);
-    let hinges = hinge_core::topology::hinges(&c.rest).unwrap();
+    let (c, mut system, truth) = creased_sheet();
     let x0 = c.rest.positions();
-    let truth: Vec<f64> = hinges
-        .iter()
-        .map(|h| {
-            let (a, b) = (x0[h.vertices[1]], x0[h.vertices[2]]);
-            if (a.x - 0.1).abs() < 1e-9 && (b.x - 0.1).abs() < 1e-9 {
-                0.6
-            } else {
-                0.0
-            }
-        })
-        .collect();
     system.set_parameter("bending.theta_bar", &truth).unwrap();
     let mut newton = tight_newton(&system, &c.pins);
     let mut target = x0.to_vec();
