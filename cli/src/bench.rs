@@ -38,8 +38,8 @@ pub struct BenchArgs {
     /// Cells per side of the cloth for the solver rows (default 80 and 200: 19 683 and 120 603 unknowns).
     #[arg(long, value_delimiter = ',', default_values_t = [80usize, 200])]
     solver_sizes: Vec<usize>,
-    /// Only the rows whose method name is listed (default: all rows; `psi`, `solve` and `setup` select those
-    /// groups).
+    /// Only the rows whose method name is listed (default: all rows; `psi`, `solve`, `setup` and `adjoint`
+    /// select those groups; a name that is none of these is an error listing them).
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
 }
@@ -842,6 +842,21 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     ];
     if all > 2 {
         kinds.insert(2, ("refactored", Kind::Full(Method::Refactored, all)));
+    }
+    // A name that selects nothing is a typo, not an empty benchmark.
+    const GROUPS: [&str; 4] = ["setup", "psi", "adjoint", "solve"];
+    if let Some(unknown) = args
+        .only
+        .iter()
+        .find(|o| !GROUPS.contains(&o.as_str()) && !kinds.iter().any(|(name, _)| name == o))
+    {
+        let mut names: Vec<&str> = kinds.iter().map(|(name, _)| *name).collect();
+        names.dedup();
+        names.extend(GROUPS);
+        return Err(format!(
+            "--only: unknown row `{unknown}` (rows: {})",
+            names.join(", ")
+        ));
     }
     kinds.retain(|(name, _)| wanted(name));
     // The other meshes get the rows that show numbering and shape independence.

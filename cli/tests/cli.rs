@@ -3740,6 +3740,12 @@ fn meshes_too_large_for_the_machine_are_one_line() {
             vec!["bench", "--solver-sizes", "60000", "--runs", "5"],
             "needs about",
         ),
+        // A row name that selects nothing: a typo, refused before anything is built (it printed an
+        // empty table).
+        (
+            vec!["bench", "--only", "refactored,projectd", "--sizes", "10"],
+            "--only: unknown row `projectd` (rows: refactored, refactored:value, per_hinge, projected",
+        ),
     ] {
         let o = hinge(&args);
         let err = String::from_utf8_lossy(&o.stderr);
