@@ -889,25 +889,19 @@ fn warn_start_inside(
     names: Option<&FileNumbering>,
     mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
 ) {
-    let mut referenced = vec![false; rest.n_vertices()];
-    for t in rest.triangles() {
-        for &v in t {
-            referenced[v] = true;
-        }
+    let mut in_a_face = vec![true; rest.n_vertices()];
+    for v in rest.unreferenced_vertices() {
+        in_a_face[v] = false;
     }
     for (i, (obstacle, _)) in obstacles.iter().enumerate() {
         if scene.obstacles.get(i).is_some_and(|o| o.model == "barrier") {
             continue;
         }
-        let distance = |p: &Vector3<f64>| match obstacle {
-            Obstacle::Sphere { center, radius } => (p - center).norm() - radius,
-            Obstacle::Plane { point, normal } => normal.dot(&(p - point)),
-        };
         let mut inside = 0usize;
         let mut deepest = (0usize, 0.0f64);
         for (v, p) in rest.positions().iter().enumerate() {
-            let d = distance(p);
-            if referenced[v] && d < 0.0 {
+            let d = obstacle.distance(p);
+            if in_a_face[v] && d < 0.0 {
                 inside += 1;
                 if d < deepest.1 {
                     deepest = (v, d);

@@ -78,6 +78,16 @@ pub enum Obstacle {
     },
 }
 
+impl Obstacle {
+    /// Signed distance of `p` to the obstacle's surface (negative inside).
+    pub fn distance(&self, p: &Vector3<f64>) -> f64 {
+        match *self {
+            Obstacle::Sphere { center, radius } => (p - center).norm() - radius,
+            Obstacle::Plane { point, normal } => normal.dot(&(p - point)),
+        }
+    }
+}
+
 /// A penalty contact energy against one obstacle.
 #[derive(Debug, Clone)]
 pub struct Contact {
@@ -306,12 +316,9 @@ impl Contact {
         if t.is_nan() { 1.0 } else { t.clamp(0.0, 1.0) }
     }
 
-    /// Signed distance of `p` to the obstacle.
+    /// Signed distance of `p` to the obstacle ([`Obstacle::distance`]).
     pub fn distance(&self, p: &Vector3<f64>) -> f64 {
-        match self.obstacle {
-            Obstacle::Sphere { center, radius } => (p - center).norm() - radius,
-            Obstacle::Plane { point, normal } => normal.dot(&(p - point)),
-        }
+        self.obstacle.distance(p)
     }
 }
 
