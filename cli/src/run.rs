@@ -425,16 +425,15 @@ fn far_end_drop(rest: &TriMesh, x: &[Vector3<f64>]) -> f64 {
     end.iter().map(|&v| r[v].z - x[v].z).sum::<f64>() / end.len().max(1) as f64
 }
 
+/// The smallest signed distance of any vertex to a sphere obstacle (`None` when there is none): the summary's
+/// `min_clearance_to_sphere`.
 fn min_clearance(obstacles: &[Obstacle], x: &[Vector3<f64>]) -> Option<f64> {
     obstacles
         .iter()
-        .filter_map(|o| match o {
-            Obstacle::Sphere { center, radius } => Some((center, radius)),
-            Obstacle::Plane { .. } => None,
-        })
-        .map(|(c, r)| {
+        .filter(|o| matches!(o, Obstacle::Sphere { .. }))
+        .map(|o| {
             x.iter()
-                .map(|p| (p - c).norm() - r)
+                .map(|p| o.distance(p))
                 .fold(f64::INFINITY, f64::min)
         })
         .reduce(f64::min)

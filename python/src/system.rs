@@ -588,9 +588,11 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
             o.max_iterations
         )));
     }
-    if !(o.gradient_tolerance > 0.0 && o.gradient_tolerance.is_finite()) {
+    // As in scene files: 0 leaves convergence to the other stopping tests (the relative ones, the step
+    // tests, the stall rule).
+    if !(o.gradient_tolerance >= 0.0 && o.gradient_tolerance.is_finite()) {
         return Err(value_error(format!(
-            "gradient_tolerance must be positive and finite, got {}",
+            "gradient_tolerance must be finite and ≥ 0 (0: the other stopping tests only), got {}",
             o.gradient_tolerance
         )));
     }

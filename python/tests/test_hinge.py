@@ -543,6 +543,14 @@ def test_unit_free_stopping_tests_shift_memory_and_acceleration_from_python():
     t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, relative_gradient_tolerance=1e-3, gradient_tolerance=1e-12)
     X, st = t.step()
     assert st["final_gradient_norm"] <= 1e-3 * st["gradient_norms"][0]
+    # gradient_tolerance = 0, as scene files allow it: the relative test alone ends the solve, at the same
+    # iterate (the absolute test of 1e-12 N above never fired first).
+    t0 = hinge.ImplicitEuler(s, X0, 0.01, 0.1, relative_gradient_tolerance=1e-3, gradient_tolerance=0.0)
+    X0b, st0 = t0.step()
+    assert st0["gradient_norms"] == st["gradient_norms"] and np.array_equal(X0b, X)
+    Xz, sz = hinge.solve_static(s, X0, gradient_tolerance=0.0, relative_gradient_tolerance=1e-4,
+                                membrane_continuation=False)
+    assert np.array_equal(Xz, Xr) and sz["gradient_norms"] == sr["gradient_norms"]
     for bad in ({"relative_gradient_tolerance": -1.0}, {"relative_step_tolerance": float("nan")},
                 {"relative_gradient_tolerance": "1e-3"}, {"remember_shift": 1},
                 {"geodesic_acceleration": "yes"}):
@@ -1329,7 +1337,8 @@ def _system():
         (lambda V, s: hinge.solve_static(s, V, max_iterations=0), "max_iterations must be from 1 to 1 000 000, got 0"),
         (lambda V, s: hinge.solve_static(s, V, max_iterations=1_000_001), "from 1 to 1 000 000, got 1000001"),
         (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, max_iterations=10**9), "from 1 to 1 000 000"),
-        (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=0.0), "gradient_tolerance must be positive"),
+        (lambda V, s: hinge.solve_static(s, V, gradient_tolerance=-1e-9), "gradient_tolerance must be finite and ≥ 0"),
+        (lambda V, s: hinge.ImplicitEuler(s, V, dt=0.01, density=0.1, gradient_tolerance=float("inf")), "got inf"),
         # The fits' L-BFGS budget too (0 evaluates the start only).
         (lambda V, s: hinge.fit(s, V, V, ["tan-bending.k"], max_iterations=1_000_001), "max_iterations must be from 0 to 1 000 000, got 1000001"),
         (lambda V, s: hinge.fit_scene("beam1", V, "material.young", max_iterations=10**7), "from 0 to 1 000 000"),

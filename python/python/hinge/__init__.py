@@ -445,7 +445,9 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``accelerated_iterations``,
     ``final_gradient_norm``,
-    ``gradient_norms``). ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
+    ``gradient_norms``). A solve stops when the gradient norm is at most ``gradient_tolerance`` (absolute, in
+    the system's force units; 0 leaves convergence to the other stopping tests, as in scene files).
+    ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
     does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
     ``extrapolate`` tries longer steps after a full shifted or definite one (as the scene keys
     ``solver.globalization`` and ``solver.extrapolate``). With ``membrane_continuation`` (as the scene key
