@@ -556,7 +556,7 @@ pub fn equilibrium_observed(
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let mut warned = warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let (parameter, stages) = membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -574,6 +574,18 @@ pub fn equilibrium_observed(
                 ));
             }
         };
+    if !interrupted {
+        warn_let_through(
+            scene,
+            &obstacles_at(&obstacles, 0.0),
+            &x,
+            &in_a_face(rest),
+            None,
+            names,
+            &mut warned,
+            warn.as_deref_mut(),
+        );
+    }
     let mut summary = RunSummary {
         frames: 0,
         newton_iterations: 0,
@@ -876,56 +888,131 @@ fn warn_stiff_rest(
     }
 }
 
+/// How many of the vertices that lie in a face (`in_a_face`) are inside `obstacle`'s surface at `x`, and the
+/// deepest of them with its (negative) distance; `None` when none is.
+fn inside(
+    obstacle: &Obstacle,
+    x: &[Vector3<f64>],
+    in_a_face: &[bool],
+) -> Option<(usize, (usize, f64))> {
+    let mut count = 0usize;
+    let mut deepest = (0usize, 0.0f64);
+    for (v, p) in x.iter().enumerate() {
+        let d = obstacle.distance(p);
+        if in_a_face[v] && d < 0.0 {
+            count += 1;
+            if d < deepest.1 {
+                deepest = (v, d);
+            }
+        }
+    }
+    (count > 0).then_some((count, deepest))
+}
+
+/// Whether each vertex of `rest` lies in a face (unreferenced vertices are ignored by every energy, so
+/// where they lie says nothing).
+fn in_a_face(rest: &TriMesh) -> Vec<bool> {
+    let mut used = vec![true; rest.n_vertices()];
+    for v in rest.unreferenced_vertices() {
+        used[v] = false;
+    }
+    used
+}
+
+/// Hands a warning line to `warn`, or prints it on stderr as `hinge: warning: …`.
+fn emit(warn: Option<&mut (dyn FnMut(&str) + '_)>, line: &str) {
+    match warn {
+        Some(w) => w(line),
+        None => eprintln!("hinge: warning: {line}"),
+    }
+}
+
 /// The set-up warning of a scene whose mesh starts inside an obstacle: one line per such obstacle (how many
 /// vertices of a face are inside its surface, the deepest and by how much), to `warn` or on stderr as
 /// `hinge: warning: …`. A penalty contact pushes them out at once, with a force of its stiffness times
 /// that depth (the cloth is thrown off); a barrier contact (skipped here) refuses the state with an error
-/// of its own.
+/// of its own. Returns, per obstacle, whether it warned.
 fn warn_start_inside(
     scene: &Scene,
     obstacles: &[(Obstacle, Option<Motion>)],
     rest: &TriMesh,
     names: Option<&FileNumbering>,
     mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
-) {
-    let mut in_a_face = vec![true; rest.n_vertices()];
-    for v in rest.unreferenced_vertices() {
-        in_a_face[v] = false;
-    }
+) -> Vec<bool> {
+    let in_a_face = in_a_face(rest);
+    let mut warned = vec![false; obstacles.len()];
     for (i, (obstacle, _)) in obstacles.iter().enumerate() {
         if scene.obstacles.get(i).is_some_and(|o| o.model == "barrier") {
             continue;
         }
-        let mut inside = 0usize;
-        let mut deepest = (0usize, 0.0f64);
-        for (v, p) in rest.positions().iter().enumerate() {
-            let d = obstacle.distance(p);
-            if in_a_face[v] && d < 0.0 {
-                inside += 1;
-                if d < deepest.1 {
-                    deepest = (v, d);
-                }
-            }
-        }
-        if inside == 0 {
+        let Some((count, deepest)) = inside(obstacle, rest.positions(), &in_a_face) else {
             continue;
-        }
+        };
         let line = format!(
-            "obstacles[{i}]: {inside} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
+            "obstacles[{i}]: {count} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
              the contact pushes {} out at once",
-            if inside == 1 {
+            if count == 1 {
                 "vertex starts"
             } else {
                 "vertices start"
             },
             names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
             -deepest.1,
-            if inside == 1 { "it" } else { "them" },
+            if count == 1 { "it" } else { "them" },
         );
-        match warn.as_deref_mut() {
-            Some(w) => w(&line),
-            None => eprintln!("hinge: warning: {line}"),
+        emit(warn.as_deref_mut(), &line);
+        warned[i] = true;
+    }
+    warned
+}
+
+/// The run-time warning of a penalty obstacle that let vertices through: at `when` (`Some(k)`: the end of
+/// frame k; `None`: a static equilibrium), vertices of `x` inside the surface of an obstacle (placed at that
+/// time) that has not warned yet (`warned`, updated).
+/// A penalty contact holds a vertex with a force of its stiffness times its depth in the margin; a fast
+/// impact, a moving obstacle or a load beyond stiffness × margin per vertex pushes vertices through the
+/// surface, which nothing else reports (the run goes on, and they may pass right through). One line per
+/// obstacle and run; barrier obstacles never let a vertex through.
+#[allow(clippy::too_many_arguments)]
+fn warn_let_through(
+    scene: &Scene,
+    obstacles: &[Obstacle],
+    x: &[Vector3<f64>],
+    in_a_face: &[bool],
+    when: Option<usize>,
+    names: Option<&FileNumbering>,
+    warned: &mut [bool],
+    mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
+) {
+    for (i, obstacle) in obstacles.iter().enumerate() {
+        let Some(spec) = scene.obstacles.get(i) else {
+            continue;
+        };
+        if warned[i] || spec.model == "barrier" {
+            continue;
         }
+        let Some((count, deepest)) = inside(obstacle, x, in_a_face) else {
+            continue;
+        };
+        let them = if count == 1 { "it" } else { "them" };
+        let line = format!(
+            "{}: {count} {} inside obstacles[{i}], the deepest (vertex {}) {:.3e} m below its surface: its \
+             penalty contact (stiffness {:e} N/m, margin {:e} m) let {them} through; a stiffer contact{} or \
+             model = \"barrier\" keeps {them} out",
+            when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
+            if count == 1 {
+                "vertex is"
+            } else {
+                "vertices are"
+            },
+            names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
+            -deepest.1,
+            spec.stiffness,
+            spec.margin,
+            if when.is_some() { ", a smaller dt" } else { "" },
+        );
+        emit(warn.as_deref_mut(), &line);
+        warned[i] = true;
     }
 }
 
@@ -939,8 +1026,10 @@ pub struct Hooks<'a> {
     pub names: Option<&'a FileNumbering>,
     /// Called after every accepted Newton iteration ([`Newton::set_observer`]).
     pub observer: Option<Observer>,
-    /// Receives each set-up warning (stiff rest hinges, [`StiffRest`]) as one line without the
-    /// `hinge: warning: ` prefix; without it they are printed on stderr with that prefix.
+    /// Receives each warning as one line without the `hinge: warning: ` prefix (set-up: stiff rest hinges,
+    /// [`StiffRest`], a mesh that starts inside an obstacle; during a run or at a static equilibrium: vertices
+    /// a penalty contact let through its obstacle's surface, once per obstacle); without it they are printed
+    /// on stderr with that prefix.
     pub warn: Option<Warn<'a>>,
 }
 
@@ -1122,7 +1211,8 @@ pub fn simulate_observed(
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let mut warned = warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let in_face = in_a_face(rest);
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,
@@ -1267,6 +1357,16 @@ pub fn simulate_observed(
         write_frame(frame + 1, &x, last)?;
         write_rest_angles(frame + 1, &system)?;
         summary.max_plastic_angle = system.max_plastic_angle();
+        warn_let_through(
+            scene,
+            &obstacles_at(&obstacles, t0 + scene.dt),
+            &x,
+            &in_face,
+            Some(frame + 1),
+            names,
+            &mut warned,
+            warn.as_deref_mut(),
+        );
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
         if interrupted {
             summary.frames = frame + 1;

@@ -4163,6 +4163,95 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
 /// the deepest and its depth), and the run goes on; the shipped drape gets no warning, and a barrier
 /// obstacle its own error instead (one line, no warning before it).
 #[test]
+fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
+    let dir = tmp("let_through");
+    let out = dir.join("out");
+    let run = |path: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "run",
+            path.to_str().unwrap(),
+            "--resolution",
+            "6",
+            "--no-frames",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = hinge(&args);
+        (
+            o.status.success(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    // The shipped drape's contact holds the cloth: no warning over its 90 frames.
+    let shipped = scene_variant(&dir, "shipped.toml", "drape", &[]);
+    assert_eq!(run(&shipped, &[]), (true, String::new()));
+    // A contact of 1 N/m (the drape's is 2e3) cannot stop the 7 × 7 cloth falling at 1 m/s: its centre
+    // vertex (24), which lands first, goes through the sphere's surface. One line, for the first frame it
+    // happens in, and the run goes on to its end.
+    let soft = scene_variant(
+        &dir,
+        "soft.toml",
+        "drape",
+        &[("stiffness = 2e3", "stiffness = 1.0")],
+    );
+    let (ok, err) = run(&soft, &["--frames", "20"]);
+    assert!(ok, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("hinge: warning: frame ")
+            && err.contains(": 1 vertex is inside obstacles[0], the deepest (vertex 24) ")
+            && err.ends_with(
+                " m below its surface: its penalty contact (stiffness 1e0 N/m, margin 5e-3 m) let it through; \
+                 a stiffer contact, a smaller dt or model = \"barrier\" keeps it out\n"
+            ),
+        "{err}"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    assert!(summary.contains("\"frames\": 20"), "{summary}");
+    // The same cloth resting statically on a plane of 0.01 N/m: each vertex weighs 2e-3 × 9.81 N and sinks
+    // until the penalty carries it, about 2 m, far below the surface.
+    let plane = scene_variant(
+        &dir,
+        "plane.toml",
+        "drape",
+        &[
+            (
+                "kind = \"sphere\"",
+                "kind = \"plane\"\npoint = [0.0, 0.0, 0.29]\nnormal = [0.0, 0.0, 1.0]",
+            ),
+            ("center = [0.0, 0.0, 0.0]\n", ""),
+            ("radius = 0.25\n", ""),
+            ("stiffness = 2e3", "stiffness = 0.01"),
+        ],
+    );
+    let (ok, err) = run(&plane, &["--static"]);
+    assert!(ok, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with(
+            "hinge: warning: the equilibrium: 49 vertices are inside obstacles[0], the deepest (vertex 24) "
+        ) && err.ends_with(
+            " m below its surface: its penalty contact (stiffness 1e-2 N/m, margin 5e-3 m) let them through; a \
+             stiffer contact or model = \"barrier\" keeps them out\n"
+        ),
+        "{err}"
+    );
+    // A barrier never lets a vertex through: no warning with the soft cloth on a barrier sphere.
+    let barrier = scene_variant(
+        &dir,
+        "barrier.toml",
+        "drape",
+        &[
+            ("radius = 0.25", "radius = 0.25\nmodel = \"barrier\""),
+            ("stiffness = 2e3", "stiffness = 1.0"),
+        ],
+    );
+    assert_eq!(run(&barrier, &["--frames", "20"]), (true, String::new()));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
 fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
     let dir = tmp("start_inside");
     let run = |path: &Path| {

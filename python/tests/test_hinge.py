@@ -1,6 +1,7 @@
 """The Python face of hinge: derivatives against finite differences, methods and ψ strings against each
 other, numpy dtypes and layouts, per-hinge parameters, threads, the GIL, and ValueError for bad input."""
 
+import re
 import threading
 import time
 import warnings
@@ -1432,6 +1433,40 @@ def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
         "obstacles[0]: 5 vertices start inside it, the deepest (vertex 0) 5.000e-1 m below its surface; "
         "the contact pushes them out at once (vertices from 0)"
     ], messages
+
+
+def test_run_scene_warns_once_of_vertices_a_soft_contact_lets_through(tmp_path):
+    # The folded pair of the test above (its vertices at z = 0.5 … 0.88) falls onto a plane at z = 0.3 whose
+    # contact (1e-3 N/m) cannot stop it: one warning, for the first frame that ends with vertices below the
+    # plane, and the run goes on to its end.
+    obj = tmp_path / "pair.obj"
+    obj.write_text(
+        "v 0.4 -0.9 0.5\nv 1 0 0.5\n"
+        f"v 0.5 {0.8 * np.cos(0.5)} {0.5 + 0.8 * np.sin(0.5)}\n"
+        "v 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n"
+    )
+    scene = tmp_path / "pair.toml"
+    scene.write_text(
+        'name = "pair"\nframes = 30\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
+        "[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n"
+        '[bending]\nenergy = "tan-bending"\n'
+        '[[obstacles]]\nkind = "plane"\npoint = [0.0, 0.0, 0.3]\nnormal = [0.0, 0.0, 1.0]\nstiffness = 1e-3\n'
+    )
+    with pytest.warns(hinge.MeshWarning) as caught:
+        V, F, X, summary = hinge.run_scene(str(scene))
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 1, messages
+    m = re.fullmatch(
+        r"frame (\d+): \d vertices are inside obstacles\[0\], the deepest \(vertex \d\) [0-9.e-]+ m below its "
+        r"surface: its penalty contact \(stiffness 1e-3 N/m, margin 0e0 m\) let them through; a stiffer "
+        r"contact, a smaller dt or model = \"barrier\" keeps them out \(vertices from 0\)",
+        messages[0],
+    )
+    assert m, messages
+    # The frame it names is the first whose positions have a vertex below the plane (X[k - 1] is frame k).
+    assert summary["frames"] == 30 and X.shape == (30, 5, 3), (summary, X.shape)
+    below = [k + 1 for k in range(30) if (X[k][:, 2] < 0.3).any()]
+    assert below and below[0] == int(m.group(1)), (below, messages)
 
 
 def test_a_static_solve_of_gravity_alone_names_the_zero_hessian():
