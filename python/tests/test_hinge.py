@@ -1410,9 +1410,9 @@ def test_non_finite_states_and_targets_raise_value_error_naming_the_entry():
         hinge.fit(s, X, target, [bending], max_iterations=2)
 
 
-def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
-    # A folded pair below a contact plane at z = 1 (the pair's vertices at z = 0.5 … 0.88): every vertex
-    # starts inside it, the first of the four at z = 0.5 is the deepest.
+def folded_pair_scene(tmp_path, frames, plane_z, stiffness):
+    """A scene file: a folded pair of triangles (its vertices at z = 0.5 … 0.88, the first of the four at
+    z = 0.5 the lowest) of the drape's material with a contact plane at height ``plane_z``."""
     obj = tmp_path / "pair.obj"
     obj.write_text(
         "v 0.4 -0.9 0.5\nv 1 0 0.5\n"
@@ -1421,13 +1421,20 @@ def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
     )
     scene = tmp_path / "pair.toml"
     scene.write_text(
-        'name = "pair"\nframes = 1\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
+        f'name = "pair"\nframes = {frames}\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
         "[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n"
         '[bending]\nenergy = "tan-bending"\n'
-        '[[obstacles]]\nkind = "plane"\npoint = [0.0, 0.0, 1.0]\nnormal = [0.0, 0.0, 1.0]\nstiffness = 2e3\n'
+        f'[[obstacles]]\nkind = "plane"\npoint = [0.0, 0.0, {plane_z}]\nnormal = [0.0, 0.0, 1.0]\n'
+        f"stiffness = {stiffness}\n"
     )
+    return str(scene)
+
+
+def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
+    # The folded pair below a contact plane at z = 1: every vertex starts inside it, the first of the four at
+    # z = 0.5 is the deepest.
     with pytest.warns(hinge.MeshWarning) as caught:
-        hinge.run_scene(str(scene))
+        hinge.run_scene(folded_pair_scene(tmp_path, 1, 1.0, 2e3))
     messages = [str(w.message) for w in caught]
     assert messages == [
         "obstacles[0]: 5 vertices start inside it, the deepest (vertex 0) 5.000e-1 m below its surface; "
@@ -1436,24 +1443,10 @@ def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
 
 
 def test_run_scene_warns_once_of_vertices_a_soft_contact_lets_through(tmp_path):
-    # The folded pair of the test above (its vertices at z = 0.5 … 0.88) falls onto a plane at z = 0.3 whose
-    # contact (1e-3 N/m) cannot stop it: one warning, for the first frame that ends with vertices below the
-    # plane, and the run goes on to its end.
-    obj = tmp_path / "pair.obj"
-    obj.write_text(
-        "v 0.4 -0.9 0.5\nv 1 0 0.5\n"
-        f"v 0.5 {0.8 * np.cos(0.5)} {0.5 + 0.8 * np.sin(0.5)}\n"
-        "v 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n"
-    )
-    scene = tmp_path / "pair.toml"
-    scene.write_text(
-        'name = "pair"\nframes = 30\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = "pair.obj"\n'
-        "[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n"
-        '[bending]\nenergy = "tan-bending"\n'
-        '[[obstacles]]\nkind = "plane"\npoint = [0.0, 0.0, 0.3]\nnormal = [0.0, 0.0, 1.0]\nstiffness = 1e-3\n'
-    )
+    # The folded pair falls onto a plane at z = 0.3 whose contact (1e-3 N/m) cannot stop it: one warning, for
+    # the first frame that ends with vertices below the plane, and the run goes on to its end.
     with pytest.warns(hinge.MeshWarning) as caught:
-        V, F, X, summary = hinge.run_scene(str(scene))
+        V, F, X, summary = hinge.run_scene(folded_pair_scene(tmp_path, 30, 0.3, 1e-3))
     messages = [str(w.message) for w in caught]
     assert len(messages) == 1, messages
     m = re.fullmatch(
