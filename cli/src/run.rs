@@ -580,6 +580,7 @@ pub fn equilibrium_observed(
             &obstacles_at(&obstacles, 0.0),
             &x,
             &in_a_face(rest),
+            LET_THROUGH_DEPTH * mean_edge_length(rest),
             None,
             names,
             &mut warned,
@@ -888,18 +889,19 @@ fn warn_stiff_rest(
     }
 }
 
-/// How many of the vertices that lie in a face (`in_a_face`) are inside `obstacle`'s surface at `x`, and the
-/// deepest of them with its (negative) distance; `None` when none is.
+/// How many of the vertices that lie in a face (`in_a_face`) are more than `depth` (≥ 0) inside `obstacle`'s
+/// surface at `x`, and the deepest of them with its (negative) distance; `None` when none is.
 fn inside(
     obstacle: &Obstacle,
     x: &[Vector3<f64>],
     in_a_face: &[bool],
+    depth: f64,
 ) -> Option<(usize, (usize, f64))> {
     let mut count = 0usize;
     let mut deepest = (0usize, 0.0f64);
     for (v, p) in x.iter().enumerate() {
         let d = obstacle.distance(p);
-        if in_a_face[v] && d < 0.0 {
+        if in_a_face[v] && d < -depth {
             count += 1;
             if d < deepest.1 {
                 deepest = (v, d);
@@ -945,7 +947,7 @@ fn warn_start_inside(
         if scene.obstacles.get(i).is_some_and(|o| o.model == "barrier") {
             continue;
         }
-        let Some((count, deepest)) = inside(obstacle, rest.positions(), &in_a_face) else {
+        let Some((count, deepest)) = inside(obstacle, rest.positions(), &in_a_face, 0.0) else {
             continue;
         };
         let line = format!(
@@ -966,19 +968,29 @@ fn warn_start_inside(
     warned
 }
 
+/// How far below a penalty obstacle's surface, as a fraction of the rest mesh's mean edge length, a vertex
+/// must be at the end of a frame (or at a static equilibrium) for `hinge run` to warn that the contact let
+/// it through (once per obstacle and run; Python `run_scene` raises it as a `MeshWarning`). A penalty
+/// contact holds a vertex with a force of its stiffness times its depth below the margin, so a resting
+/// vertex lies below the margin by its load over the stiffness (with the default margin 0, below the
+/// surface: 5e-7 m for the drape's vertices on a 2e3 N/m contact); the warning is for depths that show,
+/// not for that.
+pub const LET_THROUGH_DEPTH: f64 = 0.01;
+
 /// The run-time warning of a penalty obstacle that let vertices through: at `when` (`Some(k)`: the end of
-/// frame k; `None`: a static equilibrium), vertices of `x` inside the surface of an obstacle (placed at that
-/// time) that has not warned yet (`warned`, updated).
-/// A penalty contact holds a vertex with a force of its stiffness times its depth in the margin; a fast
-/// impact, a moving obstacle or a load beyond stiffness × margin per vertex pushes vertices through the
-/// surface, which nothing else reports (the run goes on, and they may pass right through). One line per
-/// obstacle and run; barrier obstacles never let a vertex through.
+/// frame k; `None`: a static equilibrium), vertices of `x` more than `depth`
+/// ([`LET_THROUGH_DEPTH`] of the mean rest edge) inside the surface of an obstacle (placed at that time)
+/// that has not warned yet (`warned`, updated). A fast impact, a moving obstacle or a load beyond what the
+/// penalty carries pushes vertices through the surface, which nothing else reports (the run goes on, and
+/// they may pass right through). One line per obstacle and run; barrier obstacles never let a vertex
+/// through.
 #[allow(clippy::too_many_arguments)]
 fn warn_let_through(
     scene: &Scene,
     obstacles: &[Obstacle],
     x: &[Vector3<f64>],
     in_a_face: &[bool],
+    depth: f64,
     when: Option<usize>,
     names: Option<&FileNumbering>,
     warned: &mut [bool],
@@ -991,20 +1003,21 @@ fn warn_let_through(
         if warned[i] || spec.model == "barrier" {
             continue;
         }
-        let Some((count, deepest)) = inside(obstacle, x, in_a_face) else {
+        let Some((count, deepest)) = inside(obstacle, x, in_a_face, depth) else {
             continue;
         };
         let them = if count == 1 { "it" } else { "them" };
         let line = format!(
-            "{}: {count} {} inside obstacles[{i}], the deepest (vertex {}) {:.3e} m below its surface: its \
-             penalty contact (stiffness {:e} N/m, margin {:e} m) let {them} through; a stiffer contact{} or \
-             model = \"barrier\" keeps {them} out",
+            "{}: {count} {} more than {depth:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the deepest \
+             (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {:e} N/m, margin {:e} m) \
+             let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
             when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
             if count == 1 {
                 "vertex is"
             } else {
                 "vertices are"
             },
+            100.0 * LET_THROUGH_DEPTH,
             names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
             -deepest.1,
             spec.stiffness,
@@ -1213,6 +1226,7 @@ pub fn simulate_observed(
     // After the check: a state the energies refuse is the one line, without a warning before it.
     let mut warned = warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
     let in_face = in_a_face(rest);
+    let let_through_depth = LET_THROUGH_DEPTH * mean_edge_length(rest);
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,
@@ -1362,6 +1376,7 @@ pub fn simulate_observed(
             &obstacles_at(&obstacles, t0 + scene.dt),
             &x,
             &in_face,
+            let_through_depth,
             Some(frame + 1),
             names,
             &mut warned,

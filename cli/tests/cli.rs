@@ -4186,9 +4186,19 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     // The shipped drape's contact holds the cloth: no warning over its 90 frames.
     let shipped = scene_variant(&dir, "shipped.toml", "drape", &[]);
     assert_eq!(run(&shipped, &[]), (true, String::new()));
+    // Nor with margin 0 (the default of the key), where the cloth lies inside the sphere's surface by its
+    // vertices' weight over the stiffness, 1e-5 m at rest and below 5e-5 m on landing: less than 1 % of
+    // the mean edge, 1.9e-3 m.
+    let margin0 = scene_variant(
+        &dir,
+        "margin0.toml",
+        "drape",
+        &[("margin = 0.005", "margin = 0.0")],
+    );
+    assert_eq!(run(&margin0, &[]), (true, String::new()));
     // A contact of 1 N/m (the drape's is 2e3) cannot stop the 7 × 7 cloth falling at 1 m/s: its centre
-    // vertex (24), which lands first, goes through the sphere's surface. One line, for the first frame it
-    // happens in, and the run goes on to its end.
+    // vertex (24), which lands first, goes through the sphere's surface, 6.4e-3 m deep by the end of frame
+    // 6. One line, for the first frame it happens in, and the run goes on to its end.
     let soft = scene_variant(
         &dir,
         "soft.toml",
@@ -4200,7 +4210,10 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(
         err.starts_with("hinge: warning: frame ")
-            && err.contains(": 1 vertex is inside obstacles[0], the deepest (vertex 24) ")
+            && err.contains(
+                ": 1 vertex is more than 1.897e-3 m (1 % of the mean edge) inside obstacles[0], the deepest \
+                 (vertex 24) "
+            )
             && err.ends_with(
                 " m below its surface: its penalty contact (stiffness 1e0 N/m, margin 5e-3 m) let it through; \
                  a stiffer contact, a smaller dt or model = \"barrier\" keeps it out\n"
@@ -4230,7 +4243,8 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(
         err.starts_with(
-            "hinge: warning: the equilibrium: 49 vertices are inside obstacles[0], the deepest (vertex 24) "
+            "hinge: warning: the equilibrium: 49 vertices are more than 1.897e-3 m (1 % of the mean edge) \
+             inside obstacles[0], the deepest (vertex 24) "
         ) && err.ends_with(
             " m below its surface: its penalty contact (stiffness 1e-2 N/m, margin 5e-3 m) let them through; a \
              stiffer contact or model = \"barrier\" keeps them out\n"

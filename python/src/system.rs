@@ -962,7 +962,8 @@ pub fn run_scene<'py>(
             }
         }) as hinge_solver::newton::Observer
     });
-    // Set-up warnings, raised as `hinge.MeshWarning` once the run is over (whether or not it failed).
+    // Set-up warnings and the run's (a penalty obstacle that let vertices through), raised as
+    // `hinge.MeshWarning` once the run is over (whether or not it failed).
     let mut warnings: Vec<String> = Vec::new();
     let (summary, signal) = interruptible(py, |stop| {
         hinge_cli::run::simulate_observed(

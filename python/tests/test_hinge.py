@@ -1450,15 +1450,19 @@ def test_run_scene_warns_once_of_vertices_a_soft_contact_lets_through(tmp_path):
     messages = [str(w.message) for w in caught]
     assert len(messages) == 1, messages
     m = re.fullmatch(
-        r"frame (\d+): \d vertices are inside obstacles\[0\], the deepest \(vertex \d\) [0-9.e-]+ m below its "
-        r"surface: its penalty contact \(stiffness 1e-3 N/m, margin 0e0 m\) let them through; a stiffer "
+        r"frame (\d+): \d vertices are more than ([0-9.e-]+) m \(1 % of the mean edge\) inside obstacles\[0\], "
+        r"the deepest \(vertex \d\) [0-9.e-]+ m below its surface: its penalty contact \(stiffness 1e-3 N/m, margin 0e0 m\) let them through; a stiffer "
         r"contact, a smaller dt or model = \"barrier\" keeps them out \(vertices from 0\)",
         messages[0],
     )
     assert m, messages
-    # The frame it names is the first whose positions have a vertex below the plane (X[k - 1] is frame k).
+    # The depth is 1 % of the mean edge, and the frame it names is the first whose positions have a vertex
+    # that much below the plane (X[k - 1] is frame k).
+    edges = [np.linalg.norm(V[a] - V[b]) for f in F for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))]
+    depth = 0.01 * np.mean(edges)
+    assert float(m.group(2)) == pytest.approx(depth, rel=1e-3), (m.group(2), depth)
     assert summary["frames"] == 30 and X.shape == (30, 5, 3), (summary, X.shape)
-    below = [k + 1 for k in range(30) if (X[k][:, 2] < 0.3).any()]
+    below = [k + 1 for k in range(30) if (X[k][:, 2] < 0.3 - depth).any()]
     assert below and below[0] == int(m.group(1)), (below, messages)
 
 
