@@ -14,6 +14,15 @@ fn hinge(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// Runs `hinge` with `args`: whether it succeeded, and its stderr.
+fn success_and_stderr(args: &[&str]) -> (bool, String) {
+    let o = hinge(args);
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
 /// Runs `hinge` with `args`, which must fail with exit code 1 and one line on stderr; returns that line.
 fn one_line_failure(args: &[&str]) -> String {
     let o = hinge(args);
@@ -3640,11 +3649,7 @@ fn a_rest_crease_folded_flat_is_named_at_set_up_and_in_the_failure() {
             out.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        let o = hinge(&args);
-        (
-            o.status.success(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        )
+        success_and_stderr(&args)
     };
     // Folded to 1e-4 rad of flat: 1/cos⁴ ≈ 1.6e17; the run itself goes through.
     let nearly = write("nearly", std::f64::consts::PI - 1e-4, "tan-bending");
@@ -4177,11 +4182,7 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
             out.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        let o = hinge(&args);
-        (
-            o.status.success(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        )
+        success_and_stderr(&args)
     };
     // The shipped drape's contact holds the cloth: no warning over its 90 frames.
     let shipped = scene_variant(&dir, "shipped.toml", "drape", &[]);
@@ -4269,7 +4270,7 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
 fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
     let dir = tmp("start_inside");
     let run = |path: &Path| {
-        let o = hinge(&[
+        success_and_stderr(&[
             "run",
             path.to_str().unwrap(),
             "--resolution",
@@ -4279,11 +4280,7 @@ fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
             "--no-frames",
             "--out",
             dir.join("out").to_str().unwrap(),
-        ]);
-        (
-            o.status.success(),
-            String::from_utf8_lossy(&o.stderr).into_owned(),
-        )
+        ])
     };
     let shipped = scene_variant(&dir, "shipped.toml", "drape", &[]);
     assert_eq!(run(&shipped), (true, String::new()));
