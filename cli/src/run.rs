@@ -556,7 +556,7 @@ pub fn equilibrium_observed(
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    let mut warned = warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let mut watch = ContactWatch::start(scene, &obstacles, rest, names, warn.as_deref_mut());
     let (parameter, stages) = membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -575,17 +575,7 @@ pub fn equilibrium_observed(
             }
         };
     if !interrupted {
-        warn_let_through(
-            scene,
-            &obstacles_at(&obstacles, 0.0),
-            &x,
-            &in_a_face(rest),
-            LET_THROUGH_DEPTH * mean_edge_length(rest),
-            None,
-            names,
-            &mut warned,
-            warn.as_deref_mut(),
-        );
+        watch.check(&obstacles, 0.0, &x, None, warn.as_deref_mut());
     }
     let mut summary = RunSummary {
         frames: 0,
@@ -911,61 +901,12 @@ fn inside(
     (count > 0).then_some((count, deepest))
 }
 
-/// Whether each vertex of `rest` lies in a face (unreferenced vertices are ignored by every energy, so
-/// where they lie says nothing).
-fn in_a_face(rest: &TriMesh) -> Vec<bool> {
-    let mut used = vec![true; rest.n_vertices()];
-    for v in rest.unreferenced_vertices() {
-        used[v] = false;
-    }
-    used
-}
-
 /// Hands a warning line to `warn`, or prints it on stderr as `hinge: warning: …`.
 fn emit(warn: Option<&mut (dyn FnMut(&str) + '_)>, line: &str) {
     match warn {
         Some(w) => w(line),
         None => eprintln!("hinge: warning: {line}"),
     }
-}
-
-/// The set-up warning of a scene whose mesh starts inside an obstacle: one line per such obstacle (how many
-/// vertices of a face are inside its surface, the deepest and by how much), to `warn` or on stderr as
-/// `hinge: warning: …`. A penalty contact pushes them out at once, with a force of its stiffness times
-/// that depth (the cloth is thrown off); a barrier contact (skipped here) refuses the state with an error
-/// of its own. Returns, per obstacle, whether it warned.
-fn warn_start_inside(
-    scene: &Scene,
-    obstacles: &[(Obstacle, Option<Motion>)],
-    rest: &TriMesh,
-    names: Option<&FileNumbering>,
-    mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
-) -> Vec<bool> {
-    let in_a_face = in_a_face(rest);
-    let mut warned = vec![false; obstacles.len()];
-    for (i, (obstacle, _)) in obstacles.iter().enumerate() {
-        if scene.obstacles.get(i).is_some_and(|o| o.model == "barrier") {
-            continue;
-        }
-        let Some((count, deepest)) = inside(obstacle, rest.positions(), &in_a_face, 0.0) else {
-            continue;
-        };
-        let line = format!(
-            "obstacles[{i}]: {count} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
-             the contact pushes {} out at once",
-            if count == 1 {
-                "vertex starts"
-            } else {
-                "vertices start"
-            },
-            names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
-            -deepest.1,
-            if count == 1 { "it" } else { "them" },
-        );
-        emit(warn.as_deref_mut(), &line);
-        warned[i] = true;
-    }
-    warned
 }
 
 /// How far below a penalty obstacle's surface, as a fraction of the rest mesh's mean edge length, a vertex
@@ -977,55 +918,119 @@ fn warn_start_inside(
 /// not for that.
 pub const LET_THROUGH_DEPTH: f64 = 0.01;
 
-/// The run-time warning of a penalty obstacle that let vertices through: at `when` (`Some(k)`: the end of
-/// frame k; `None`: a static equilibrium), vertices of `x` more than `depth`
-/// ([`LET_THROUGH_DEPTH`] of the mean rest edge) inside the surface of an obstacle (placed at that time)
-/// that has not warned yet (`warned`, updated). A fast impact, a moving obstacle or a load beyond what the
-/// penalty carries pushes vertices through the surface, which nothing else reports (the run goes on, and
-/// they may pass right through). One line per obstacle and run; barrier obstacles never let a vertex
-/// through.
-#[allow(clippy::too_many_arguments)]
-fn warn_let_through(
-    scene: &Scene,
-    obstacles: &[Obstacle],
-    x: &[Vector3<f64>],
-    in_a_face: &[bool],
+/// The warnings of vertices inside penalty obstacles (barrier obstacles refuse such states with errors of
+/// their own), one line per obstacle and run at most, to `warn` or on stderr as `hinge: warning: …`:
+/// [`ContactWatch::start`] for a mesh that starts inside an obstacle, [`ContactWatch::check`] for vertices
+/// a penalty contact let through later.
+struct ContactWatch<'a> {
+    /// Whether each vertex lies in a face (where unreferenced vertices lie says nothing).
+    in_face: Vec<bool>,
+    /// [`LET_THROUGH_DEPTH`] times the rest mesh's mean edge length.
     depth: f64,
-    when: Option<usize>,
-    names: Option<&FileNumbering>,
-    warned: &mut [bool],
-    mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
-) {
-    for (i, obstacle) in obstacles.iter().enumerate() {
-        let Some(spec) = scene.obstacles.get(i) else {
-            continue;
+    /// Per obstacle: the stiffness and margin of a penalty obstacle that has not warned yet, else `None`.
+    pending: Vec<Option<(f64, f64)>>,
+    /// The rest mesh file's numbering, for the vertices the lines name.
+    names: Option<&'a FileNumbering>,
+}
+
+impl<'a> ContactWatch<'a> {
+    /// The set-up warning of a scene whose mesh starts inside an obstacle: one line per such penalty
+    /// obstacle (how many vertices of a face are inside its surface, the deepest and by how much). A
+    /// penalty contact pushes them out at once, with a force of its stiffness times that depth (the cloth
+    /// is thrown off). An obstacle that warned here does not warn again.
+    fn start(
+        scene: &Scene,
+        obstacles: &[(Obstacle, Option<Motion>)],
+        rest: &TriMesh,
+        names: Option<&'a FileNumbering>,
+        mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
+    ) -> Self {
+        let mut watch = ContactWatch {
+            in_face: rest.vertices_in_faces(),
+            depth: LET_THROUGH_DEPTH * mean_edge_length(rest),
+            pending: (0..obstacles.len())
+                .map(|i| {
+                    scene
+                        .obstacles
+                        .get(i)
+                        .filter(|o| o.model != "barrier")
+                        .map(|o| (o.stiffness, o.margin))
+                })
+                .collect(),
+            names,
         };
-        if warned[i] || spec.model == "barrier" {
-            continue;
+        for (i, (obstacle, _)) in obstacles.iter().enumerate() {
+            if watch.pending[i].is_none() {
+                continue;
+            }
+            let Some((count, deepest)) = inside(obstacle, rest.positions(), &watch.in_face, 0.0)
+            else {
+                continue;
+            };
+            let line = format!(
+                "obstacles[{i}]: {count} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
+                 the contact pushes {} out at once",
+                if count == 1 {
+                    "vertex starts"
+                } else {
+                    "vertices start"
+                },
+                names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
+                -deepest.1,
+                if count == 1 { "it" } else { "them" },
+            );
+            emit(warn.as_deref_mut(), &line);
+            watch.pending[i] = None;
         }
-        let Some((count, deepest)) = inside(obstacle, x, in_a_face, depth) else {
-            continue;
-        };
-        let them = if count == 1 { "it" } else { "them" };
-        let line = format!(
-            "{}: {count} {} more than {depth:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the deepest \
-             (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {:e} N/m, margin {:e} m) \
-             let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
-            when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
-            if count == 1 {
-                "vertex is"
-            } else {
-                "vertices are"
-            },
-            100.0 * LET_THROUGH_DEPTH,
-            names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
-            -deepest.1,
-            spec.stiffness,
-            spec.margin,
-            if when.is_some() { ", a smaller dt" } else { "" },
-        );
-        emit(warn.as_deref_mut(), &line);
-        warned[i] = true;
+        watch
+    }
+
+    /// The run-time warning of a penalty obstacle that let vertices through: at `when` (`Some(k)`: the end
+    /// of frame k; `None`: a static equilibrium), vertices of `x` more than [`ContactWatch::depth`] inside
+    /// the surface of an obstacle that has not warned yet, the obstacles placed at `time`. A fast impact, a
+    /// moving obstacle or a load beyond what the penalty carries pushes vertices through the surface, which
+    /// nothing else reports (the run goes on, and they may pass right through).
+    fn check(
+        &mut self,
+        obstacles: &[(Obstacle, Option<Motion>)],
+        time: f64,
+        x: &[Vector3<f64>],
+        when: Option<usize>,
+        mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
+    ) {
+        if self.pending.iter().all(Option::is_none) {
+            return;
+        }
+        let depth = self.depth;
+        for (i, obstacle) in obstacles_at(obstacles, time).iter().enumerate() {
+            let Some((stiffness, margin)) = self.pending[i] else {
+                continue;
+            };
+            let Some((count, deepest)) = inside(obstacle, x, &self.in_face, depth) else {
+                continue;
+            };
+            let them = if count == 1 { "it" } else { "them" };
+            let line = format!(
+                "{}: {count} {} more than {depth:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the \
+                 deepest (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {:e} N/m, \
+                 margin {:e} m) let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
+                when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
+                if count == 1 {
+                    "vertex is"
+                } else {
+                    "vertices are"
+                },
+                100.0 * LET_THROUGH_DEPTH,
+                self.names
+                    .map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
+                -deepest.1,
+                stiffness,
+                margin,
+                if when.is_some() { ", a smaller dt" } else { "" },
+            );
+            emit(warn.as_deref_mut(), &line);
+            self.pending[i] = None;
+        }
     }
 }
 
@@ -1224,9 +1229,7 @@ pub fn simulate_observed(
     let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    let mut warned = warn_start_inside(scene, &obstacles, rest, names, warn.as_deref_mut());
-    let in_face = in_a_face(rest);
-    let let_through_depth = LET_THROUGH_DEPTH * mean_edge_length(rest);
+    let mut watch = ContactWatch::start(scene, &obstacles, rest, names, warn.as_deref_mut());
     let mut summary = RunSummary {
         frames: scene.frames,
         newton_iterations: 0,
@@ -1371,15 +1374,11 @@ pub fn simulate_observed(
         write_frame(frame + 1, &x, last)?;
         write_rest_angles(frame + 1, &system)?;
         summary.max_plastic_angle = system.max_plastic_angle();
-        warn_let_through(
-            scene,
-            &obstacles_at(&obstacles, t0 + scene.dt),
+        watch.check(
+            &obstacles,
+            t0 + scene.dt,
             &x,
-            &in_face,
-            let_through_depth,
             Some(frame + 1),
-            names,
-            &mut warned,
             warn.as_deref_mut(),
         );
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
