@@ -164,19 +164,17 @@ fn lu_gives_the_same_bits_on_any_thread_count() {
 /// A static solve of gravity alone (nothing holds the cloth, F is linear): the typed `ZeroHessian` error
 /// with the gradient norm, after one factorization attempt at most, positions untouched. Before, the shift
 /// ladder scaled by the smallest normal number (shifts of 2e-316) and the error said "matrix is singular".
-/// Shaken by the cloth's own bending, or with inertia, the same cloth solves as before.
+/// With inertia the same cloth solves in one step.
 #[test]
 fn a_zero_hessian_is_named_not_shifted_by_denormals() {
     let rest = cloth(4);
     let n = rest.n_vertices();
-    let gravity = || {
-        Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap())
-    };
-    let mut sys = System::new(n, vec![gravity() as Box<dyn Energy>]).unwrap();
+    let gravity = Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap();
+    let mut sys = System::new(n, vec![Box::new(gravity)]).unwrap();
     let mut newton = Newton::new(
         &sys,
         &Pins::default(),
-        Box::new(FaerLlt::default()),
+        default_solver(),
         NewtonParams::default(),
     )
     .unwrap();
@@ -188,7 +186,7 @@ fn a_zero_hessian_is_named_not_shifted_by_denormals() {
     assert_eq!(stats.iterations, 0);
     assert!(stats.factorizations <= 1, "{stats:?}");
     assert_eq!(stats.max_shift, 0.0);
-    // ‖∇F‖ = total weight / √n per dof… here simply the norm of the lumped weights.
+    // ∇F is the vertices' weights along z: its norm is that of the lumped weights.
     let weight: f64 = lumped_masses(&rest, 0.1)
         .iter()
         .map(|m| (m * 9.81).powi(2))
@@ -207,6 +205,92 @@ fn a_zero_hessian_is_named_not_shifted_by_denormals() {
     };
     let stats = newton.minimize(&mut sys, &mut x, Some(&inertia)).unwrap();
     assert_eq!(stats.iterations, 1);
+}
+
+/// One vertex with `E = c x y`: its Hessian block has a zero diagonal and off-diagonal entries `c`
+/// (eigenvalues ±c), so the exact matrix fails to factor and the shift ladder needs a scale. It takes the
+/// largest entry when the diagonal is zero: the ladder climbs from 1e-8 c by factors of 4 and factors at
+/// the first rung above c. With the diagonal's scale alone (zero, floored at the smallest normal number) its 40
+/// rungs ended near 1e-292 and the solve failed with "not positive definite".
+struct Saddle {
+    c: f64,
+    diag: usize,
+}
+
+impl Energy for Saddle {
+    fn name(&self) -> &str {
+        "saddle"
+    }
+    fn n_vertices(&self) -> usize {
+        1
+    }
+    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
+    fn bind(
+        &mut self,
+        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+    ) -> Result<(), hinge_core::EvalError> {
+        self.diag = vertex0_block(pattern)?;
+        Ok(())
+    }
+    fn add_to(
+        &mut self,
+        x: &[Vector3<f64>],
+        request: Request,
+        _: Parallelism,
+        acc: &mut hinge_core::energy::Accumulator,
+    ) -> Result<f64, hinge_core::EvalError> {
+        let (c, p) = (self.c, x[0]);
+        acc.add_gradient(0, &Vector3::new(c * p.y, c * p.x, 0.0));
+        if request.hessian {
+            let mut h = hinge_core::nalgebra::Matrix3::zeros();
+            h[(0, 1)] = c;
+            h[(1, 0)] = c;
+            acc.add_block(self.diag, 0, 0, &h);
+        }
+        Ok(c * p.x * p.y)
+    }
+}
+
+#[test]
+fn a_zero_diagonal_scales_the_shifts_by_the_largest_entry() {
+    for c in [1e-3, 1.0, 1e6] {
+        let mut sys = System::new(1, vec![Box::new(Saddle { c, diag: 0 })]).unwrap();
+        let params = NewtonParams {
+            max_iterations: 1,
+            ..NewtonParams::default()
+        };
+        let pins = Pins::new(1, Vec::new()).unwrap();
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let energies = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let seen = std::sync::Arc::clone(&energies);
+        newton.set_observer(Some(Box::new(move |r| seen.lock().unwrap().push(r.energy))));
+        let mut x = vec![Vector3::new(1.0, 0.5, 0.0)];
+        let f0 = c * 0.5;
+        let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
+        // One iteration taken (the budget), not a factorization failure.
+        assert!(
+            matches!(err, SolverError::NotConverged { .. }),
+            "c = {c}: {err}"
+        );
+        let stats = err.stats();
+        assert_eq!(stats.iterations, 1, "c = {c}");
+        // The first shift that factors is the first rung above c: in (c, 4c].
+        assert!(
+            stats.max_shift > c && stats.max_shift <= 4.0 * c,
+            "c = {c}: shift {:e}",
+            stats.max_shift
+        );
+        // The exact attempt, then the rungs 1e-8 c · 4^k for k = 0 … 14 (the first above c), each one
+        // factorization.
+        assert_eq!(stats.factorizations, 16, "c = {c}");
+        // The step lowered E (unbounded below along x = −y); the failed solve left x where it was.
+        let energies = energies.lock().unwrap();
+        assert!(
+            energies.len() == 1 && energies[0] < f0,
+            "c = {c}: {energies:?} against {f0}"
+        );
+        assert_eq!(x, vec![Vector3::new(1.0, 0.5, 0.0)]);
+    }
 }
 
 #[test]
