@@ -4252,6 +4252,56 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
         ),
         "{err}"
     );
+    // A mesh from a file names its vertices in the file's numbering (OBJ: from 1): a folded pair of
+    // triangles, not a grid, falling onto a plane of 1e-3 N/m. The vertex the line names is the lowest of
+    // the frame it names (read back from that frame's file), and its depth is the plane's height minus
+    // that vertex's.
+    std::fs::write(
+        dir.join("pair.obj"),
+        format!(
+            "v 0.4 -0.9 0.5\nv 1 0 0.5\nv 0.5 {} {}\nv 2 0 0.5\nv 0 0 0.5\nf 1 5 2\nf 3 2 5\nf 4 2 3\n",
+            0.8 * 0.5f64.cos(),
+            0.5 + 0.8 * 0.5f64.sin()
+        ),
+    )
+    .unwrap();
+    let pair = dir.join("pair.toml");
+    std::fs::write(
+        &pair,
+        "name = \"pair\"\nframes = 30\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = \"pair.obj\"\n\
+         [material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n[bending]\n\
+         energy = \"tan-bending\"\n[[obstacles]]\nkind = \"plane\"\npoint = [0.0, 0.0, 0.3]\n\
+         normal = [0.0, 0.0, 1.0]\nstiffness = 1e-3\n",
+    )
+    .unwrap();
+    let frames = dir.join("pair_out");
+    let (ok, err) = success_and_stderr(&[
+        "run",
+        pair.to_str().unwrap(),
+        "--out",
+        frames.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    let field = |after: &str, until: char| -> String {
+        let start = err
+            .find(after)
+            .unwrap_or_else(|| panic!("no `{after}` in {err}"))
+            + after.len();
+        err[start..].chars().take_while(|&c| c != until).collect()
+    };
+    let frame: usize = field("hinge: warning: frame ", ':').parse().unwrap();
+    let named: usize = field("the deepest (vertex ", ')').parse().unwrap();
+    let depth = field(&format!("(vertex {named}) "), ' ');
+    let obj = std::fs::read_to_string(frames.join(format!("frame_{frame:04}.obj"))).unwrap();
+    let z: Vec<f64> = obj
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| l.split_whitespace().nth(2).unwrap().parse().unwrap())
+        .collect();
+    let lowest = (0..z.len()).min_by(|&a, &b| z[a].total_cmp(&z[b])).unwrap();
+    assert_eq!(named, lowest + 1, "{err}\n{z:?}");
+    assert_eq!(depth, format!("{:.3e}", 0.3 - z[lowest]), "{err}");
     // A barrier never lets a vertex through: no warning with the soft cloth on a barrier sphere.
     let barrier = scene_variant(
         &dir,
