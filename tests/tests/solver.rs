@@ -5,7 +5,7 @@ use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, Method, Parallelism, Request};
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::grid::{Diagonal, grid};
-use hinge_core::nalgebra::Vector3;
+use hinge_core::nalgebra::{Matrix3, Vector3};
 use hinge_energies::bending::{DiscreteShells, ViscousDamping};
 use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::pins::Pins;
@@ -212,49 +212,19 @@ fn a_zero_hessian_is_named_not_shifted_by_denormals() {
 /// largest entry when the diagonal is zero: the ladder climbs from 1e-8 c by factors of 4 and factors at
 /// the first rung above c. With the diagonal's scale alone (zero, floored at the smallest normal number) its 40
 /// rungs ended near 1e-292 and the solve failed with "not positive definite".
-struct Saddle {
-    c: f64,
-    diag: usize,
-}
-
-impl Energy for Saddle {
-    fn name(&self) -> &str {
-        "saddle"
-    }
-    fn n_vertices(&self) -> usize {
-        1
-    }
-    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
-    fn bind(
-        &mut self,
-        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
-    ) -> Result<(), hinge_core::EvalError> {
-        self.diag = vertex0_block(pattern)?;
-        Ok(())
-    }
-    fn add_to(
-        &mut self,
-        x: &[Vector3<f64>],
-        request: Request,
-        _: Parallelism,
-        acc: &mut hinge_core::energy::Accumulator,
-    ) -> Result<f64, hinge_core::EvalError> {
-        let (c, p) = (self.c, x[0]);
-        acc.add_gradient(0, &Vector3::new(c * p.y, c * p.x, 0.0));
-        if request.hessian {
-            let mut h = hinge_core::nalgebra::Matrix3::zeros();
-            h[(0, 1)] = c;
-            h[(1, 0)] = c;
-            acc.add_block(self.diag, 0, 0, &h);
-        }
-        Ok(c * p.x * p.y)
-    }
+fn saddle(c: f64) -> OnVertex0 {
+    OnVertex0::new("saddle", move |p| {
+        let mut h = Matrix3::zeros();
+        h[(0, 1)] = c;
+        h[(1, 0)] = c;
+        Ok((c * p.x * p.y, Vector3::new(c * p.y, c * p.x, 0.0), h))
+    })
 }
 
 #[test]
 fn a_zero_diagonal_scales_the_shifts_by_the_largest_entry() {
     for c in [1e-3, 1.0, 1e6] {
-        let mut sys = System::new(1, vec![Box::new(Saddle { c, diag: 0 })]).unwrap();
+        let mut sys = System::new(1, vec![Box::new(saddle(c))]).unwrap();
         let params = NewtonParams {
             max_iterations: 1,
             ..NewtonParams::default()
@@ -2164,17 +2134,34 @@ fn vertex0_block(
     })
 }
 
-/// One vertex on a kink with a saddle: `E = c₀ + k |x| − ½ a y²` (a gradient of k = 1e4 N that no step
-/// lowers, like a triangle collapsing under a bending energy's 1/h gradient; a concave direction of
-/// curvature −a = −1e16 N/m, so every factorization needs a shift above a; and a constant c₀ = 1e12 J, so
-/// F's rounding allowance is 2e-3 J).
-struct Kink {
+/// The value, gradient and Hessian block of a one-vertex test energy at the vertex's position, or why it
+/// cannot be evaluated there.
+type VertexLocal = Result<(f64, Vector3<f64>, Matrix3<f64>), String>;
+
+/// A test energy of vertex 0 alone (the one-vertex energies below), from a closure that gives its value,
+/// gradient and Hessian block at vertex 0's position; an `Err` is returned as an evaluation error.
+struct OnVertex0 {
+    name: &'static str,
+    local: Box<dyn Fn(Vector3<f64>) -> VertexLocal + Send + Sync>,
     diag: usize,
 }
 
-impl Energy for Kink {
+impl OnVertex0 {
+    fn new(
+        name: &'static str,
+        local: impl Fn(Vector3<f64>) -> VertexLocal + Send + Sync + 'static,
+    ) -> Self {
+        OnVertex0 {
+            name,
+            local: Box::new(local),
+            diag: 0,
+        }
+    }
+}
+
+impl Energy for OnVertex0 {
     fn name(&self) -> &str {
-        "kink"
+        self.name
     }
     fn n_vertices(&self) -> usize {
         1
@@ -2194,25 +2181,39 @@ impl Energy for Kink {
         _: Parallelism,
         acc: &mut hinge_core::energy::Accumulator,
     ) -> Result<f64, hinge_core::EvalError> {
-        let (k, a) = (1e4, 1e16);
-        let p = x[0];
-        acc.add_gradient(0, &Vector3::new(k * p.x.signum(), -a * p.y, 0.0));
+        let (e, g, h) =
+            (self.local)(x[0]).map_err(|message| hinge_core::EvalError::Pattern { message })?;
+        acc.add_gradient(0, &g);
         if request.hessian {
-            let h = hinge_core::nalgebra::Matrix3::from_diagonal(&Vector3::new(0.0, -a, 0.0));
             acc.add_block(self.diag, 0, 0, &h);
         }
-        Ok(1e12 + k * p.x.abs() - 0.5 * a * p.y * p.y)
+        Ok(e)
     }
 }
 
+/// One vertex on a kink with a saddle: `E = c₀ + k |x| − ½ a y²` (a gradient of k = 1e4 N that no step
+/// lowers, like a triangle collapsing under a bending energy's 1/h gradient; a concave direction of
+/// curvature −a = −1e16 N/m, so every factorization needs a shift above a; and a constant c₀ = 1e12 J, so
+/// F's rounding allowance is 2e-3 J).
+fn kink() -> OnVertex0 {
+    let (k, a) = (1e4, 1e16);
+    OnVertex0::new("kink", move |p| {
+        Ok((
+            1e12 + k * p.x.abs() - 0.5 * a * p.y * p.y,
+            Vector3::new(k * p.x.signum(), -a * p.y, 0.0),
+            Matrix3::from_diagonal(&Vector3::new(0.0, -a, 0.0)),
+        ))
+    })
+}
+
 /// A shifted direction whose predicted decrease is below F's rounding does not end a solve on the step
-/// test (hinge_solver::newton, Stopping): on the [`Kink`] the shift climbs above 1e16, the shifted step is
+/// test (hinge_solver::newton, Stopping): on the [`kink`] the shift climbs above 1e16, the shifted step is
 /// 1e-12 m and predicts a decrease of 1e-8 J, below F's rounding of 2e-3 J. That once returned the solve
 /// as converged at ‖∇F‖ = 1e4 N (a public closed mesh accepted a frame at 4e3 N that way); it now fails
 /// as stalled, leaving the positions untouched.
 #[test]
 fn a_shifted_step_below_the_rounding_does_not_end_a_solve() {
-    let mut sys = System::new(1, vec![Box::new(Kink { diag: 0 })]).unwrap();
+    let mut sys = System::new(1, vec![Box::new(kink())]).unwrap();
     let pins = Pins::new(1, Vec::new()).unwrap();
     let params = NewtonParams {
         gradient_tolerance: 1e-6,
@@ -2246,64 +2247,23 @@ fn a_shifted_step_below_the_rounding_does_not_end_a_solve() {
 /// prediction's distance `r̂` only when `r̂² ≥ 4 k Δt²/m`. Without it Newton follows the energy into the
 /// singularity with ever shorter steps and an ever larger gradient, as on a triangle collapsing under a
 /// bending energy (`docs/shells/closed_meshes.py`'s lumpy shell, frame 28).
-struct Attractor {
-    centre: Vector3<f64>,
-    k: f64,
-    diag: usize,
-}
-
-impl Energy for Attractor {
-    fn name(&self) -> &str {
-        "attractor"
-    }
-    fn n_vertices(&self) -> usize {
-        1
-    }
-    fn couplings(&self, _: &mut Vec<(usize, usize)>) {}
-    fn bind(
-        &mut self,
-        pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
-    ) -> Result<(), hinge_core::EvalError> {
-        self.diag = vertex0_block(pattern)?;
-        Ok(())
-    }
-    fn add_to(
-        &mut self,
-        x: &[Vector3<f64>],
-        request: Request,
-        _: Parallelism,
-        acc: &mut hinge_core::energy::Accumulator,
-    ) -> Result<f64, hinge_core::EvalError> {
-        let d = x[0] - self.centre;
+fn attractor(centre: Vector3<f64>, k: f64) -> OnVertex0 {
+    OnVertex0::new("attractor", move |p| {
+        let d = p - centre;
         let r2 = d.norm_squared();
         if !(r2 > 0.0) {
-            return Err(hinge_core::EvalError::Pattern {
-                message: "vertex 0 on the attractor".into(),
-            });
+            return Err("vertex 0 on the attractor".into());
         }
-        acc.add_gradient(0, &(d * (self.k / r2)));
-        if request.hessian {
-            let h = (hinge_core::nalgebra::Matrix3::identity() - d * d.transpose() * (2.0 / r2))
-                * (self.k / r2);
-            acc.add_block(self.diag, 0, 0, &h);
-        }
-        Ok(0.5 * self.k * r2.ln())
-    }
+        let h = (Matrix3::identity() - d * d.transpose() * (2.0 / r2)) * (k / r2);
+        Ok((0.5 * k * r2.ln(), d * (k / r2), h))
+    })
 }
 
 /// One vertex of mass 1 passing the attractor at `b` = 2 cm (m = 1, k = 0.02, Δt = 0.1 s, speed 2 m/s, so
 /// that the full step's prediction is the point of closest approach), with the stepper.
 fn fly_by() -> (System, ImplicitEuler, Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
     let centre = Vector3::new(1.0, 0.0, 0.0);
-    let sys = System::new(
-        1,
-        vec![Box::new(Attractor {
-            centre,
-            k: 0.02,
-            diag: 0,
-        })],
-    )
-    .unwrap();
+    let sys = System::new(1, vec![Box::new(attractor(centre, 0.02))]).unwrap();
     let stepper = ImplicitEuler::new(
         &sys,
         0.1,
@@ -2435,7 +2395,7 @@ impl Energy for SwitchedWell {
         let r2 = p.norm_squared();
         acc.add_gradient(0, &(p * (s * (self.q * r2 - self.c))));
         if request.hessian {
-            let h = hinge_core::nalgebra::Matrix3::identity() * (s * (self.q * r2 - self.c))
+            let h = Matrix3::identity() * (s * (self.q * r2 - self.c))
                 + p * p.transpose() * (2.0 * s * self.q);
             acc.add_block(self.diag, 0, 0, &h);
         }
