@@ -931,6 +931,10 @@ struct ContactWatch<'a> {
     pending: Vec<Option<(f64, f64)>>,
     /// The rest mesh file's numbering, for the vertices the lines name.
     names: Option<&'a FileNumbering>,
+    /// The positions at the last frame end checked (the start: the rest positions) and its time, for the
+    /// paths through spheres; empty when no penalty sphere is watched.
+    last: Vec<Vector3<f64>>,
+    last_time: f64,
 }
 
 impl<'a> ContactWatch<'a> {
@@ -958,6 +962,8 @@ impl<'a> ContactWatch<'a> {
                 })
                 .collect(),
             names,
+            last: Vec::new(),
+            last_time: 0.0,
         };
         for (i, (obstacle, _)) in obstacles.iter().enumerate() {
             if watch.pending[i].is_none() {
@@ -982,7 +988,18 @@ impl<'a> ContactWatch<'a> {
             emit(warn.as_deref_mut(), &line);
             watch.pending[i] = None;
         }
+        if watch.watches_a_sphere(obstacles) {
+            watch.last = rest.positions().to_vec();
+        }
         watch
+    }
+
+    /// Whether a penalty sphere that has not warned yet is watched (its paths need the last positions).
+    fn watches_a_sphere(&self, obstacles: &[(Obstacle, Option<Motion>)]) -> bool {
+        obstacles
+            .iter()
+            .zip(&self.pending)
+            .any(|((o, _), p)| p.is_some() && matches!(o, Obstacle::Sphere { .. }))
     }
 
     /// The run-time warning of a penalty obstacle that let vertices through: at `when` (`Some(k)`: the end
@@ -990,6 +1007,11 @@ impl<'a> ContactWatch<'a> {
     /// the surface of an obstacle that has not warned yet, the obstacles placed at `time`. A fast impact, a
     /// moving obstacle or a load beyond what the penalty carries pushes vertices through the surface, which
     /// nothing else reports (the run goes on, and they may pass right through).
+    ///
+    /// At a frame end it also warns of vertices that went through a penalty sphere since the last frame end
+    /// and came out again, which the depth at the two ends does not show ([`passed_through`]): the contact
+    /// acts on where a step ends, so a vertex whose step carries it across the sphere is never held (a large
+    /// dt, a fast fall, a small sphere).
     fn check(
         &mut self,
         obstacles: &[(Obstacle, Option<Motion>)],
@@ -1002,11 +1024,45 @@ impl<'a> ContactWatch<'a> {
             return;
         }
         let depth = self.depth;
+        // Where the obstacles were at the last frame end, for the paths (at a frame end only).
+        let before = (when.is_some() && self.last.len() == x.len())
+            .then(|| obstacles_at(obstacles, self.last_time));
         for (i, obstacle) in obstacles_at(obstacles, time).iter().enumerate() {
             let Some((stiffness, margin)) = self.pending[i] else {
                 continue;
             };
             let Some((count, deepest)) = inside(obstacle, x, &self.in_face, depth) else {
+                let (Some(k), Some(before)) = (when, &before) else {
+                    continue;
+                };
+                let Some((count, closest)) =
+                    passed_through(&before[i], obstacle, &self.last, x, &self.in_face)
+                else {
+                    continue;
+                };
+                let them = if count == 1 { "it" } else { "them" };
+                let line = format!(
+                    "frame {k}: {count} {} through obstacles[{i}] since frame {} ({} straight path{} relative to \
+                     the sphere {} within half its radius of its centre; the closest, vertex {}, {:.3e} m from \
+                     it): its penalty contact (stiffness {:e} N/m, margin {:e} m) acts where a step ends and \
+                     never held {them}; a smaller dt or model = \"barrier\" keeps {them} out",
+                    if count == 1 {
+                        "vertex went"
+                    } else {
+                        "vertices went"
+                    },
+                    k - 1,
+                    if count == 1 { "its" } else { "their" },
+                    if count == 1 { "" } else { "s" },
+                    if count == 1 { "passes" } else { "pass" },
+                    self.names
+                        .map_or_else(|| closest.0.to_string(), |n| n.vertex_number(closest.0)),
+                    closest.1,
+                    stiffness,
+                    margin,
+                );
+                emit(warn.as_deref_mut(), &line);
+                self.pending[i] = None;
                 continue;
             };
             let them = if count == 1 { "it" } else { "them" };
@@ -1031,7 +1087,65 @@ impl<'a> ContactWatch<'a> {
             emit(warn.as_deref_mut(), &line);
             self.pending[i] = None;
         }
+        if when.is_some() && !self.last.is_empty() {
+            if self.watches_a_sphere(obstacles) {
+                self.last.copy_from_slice(x);
+                self.last_time = time;
+            } else {
+                self.last = Vec::new();
+            }
+        }
     }
+}
+
+/// How many of the vertices that lie in a face went through a sphere between two frame ends, and the one
+/// closest to its centre with that distance; `None` when none did or the obstacle is not a sphere. A
+/// vertex went through when its straight path from `from` (with the sphere at `before`) to `to` (with it
+/// at `now`), taken relative to the sphere's centre, passes within half the radius of the centre. The
+/// steps of implicit Euler move each vertex along such straight paths, and a path that starts and ends
+/// outside the sphere and comes that close to its centre crosses it; a vertex sliding over the sphere
+/// stays far from that (its path's chord dips a distance L²/(8R) below the surface for a move L, a tenth
+/// of the radius at L = 0.9 R within one frame). With substeps the frame's path is their chain, and only its
+/// ends are seen.
+fn passed_through(
+    before: &Obstacle,
+    now: &Obstacle,
+    from: &[Vector3<f64>],
+    to: &[Vector3<f64>],
+    in_a_face: &[bool],
+) -> Option<(usize, (usize, f64))> {
+    let (
+        Obstacle::Sphere { center: c0, .. },
+        Obstacle::Sphere {
+            center: c1, radius, ..
+        },
+    ) = (before, now)
+    else {
+        return None;
+    };
+    let mut count = 0usize;
+    let mut closest = (0usize, f64::INFINITY);
+    for (v, (p, q)) in from.iter().zip(to).enumerate() {
+        if !in_a_face[v] {
+            continue;
+        }
+        let (a, b) = (p - c0, q - c1);
+        let ab = b - a;
+        let len2 = ab.norm_squared();
+        let t = if len2 > 0.0 {
+            (-a.dot(&ab) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d = (a + ab * t).norm();
+        if d < 0.5 * radius {
+            count += 1;
+            if d < closest.1 {
+                closest = (v, d);
+            }
+        }
+    }
+    (count > 0).then_some((count, closest))
 }
 
 /// What a caller hooks into a run ([`simulate_observed`], [`equilibrium_observed`]); the default hooks

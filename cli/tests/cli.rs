@@ -4302,6 +4302,95 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     let lowest = (0..z.len()).min_by(|&a, &b| z[a].total_cmp(&z[b])).unwrap();
     assert_eq!(named, lowest + 1, "{err}\n{z:?}");
     assert_eq!(depth, format!("{:.3e}", 0.3 - z[lowest]), "{err}");
+    // A step that carries vertices across the sphere is never held by it: at dt = 0.5 s the cloth falls
+    // 2.45 m in its first frame, from 0.3 m above the sphere's centre to 2.15 m below it, and ends outside
+    // the sphere, where the depth at frame ends does not show it. The line names the vertices whose straight
+    // paths between the frames pass within half the radius (0.125 m) of the centre, recomputed here from
+    // the frame files: the centre vertex alone at 7 × 7 vertices (its neighbours are 0.167 m off the axis),
+    // whose path passes 0.04 m from the centre with the sphere moved 0.04 m along x.
+    let through = |name: &str, edits: &[(&str, &str)], centre: [[f64; 3]; 2], distance: f64| {
+        let scene = scene_variant(&dir, name, "drape", edits);
+        let frames = dir.join(format!("{name}_out"));
+        let (ok, err) = success_and_stderr(&[
+            "run",
+            scene.to_str().unwrap(),
+            "--resolution",
+            "6",
+            "--frames",
+            "3",
+            "--out",
+            frames.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let read = |k: usize| -> Vec<[f64; 3]> {
+            std::fs::read_to_string(frames.join(format!("frame_{k:04}.obj")))
+                .unwrap()
+                .lines()
+                .filter_map(|l| l.strip_prefix("v "))
+                .map(|l| {
+                    let c: Vec<f64> = l.split_whitespace().map(|v| v.parse().unwrap()).collect();
+                    [c[0], c[1], c[2]]
+                })
+                .collect()
+        };
+        let (from, to) = (read(0), read(1));
+        // Relative to the sphere: its centre at `centre[0]` at frame 0 and `centre[1]` at frame 1.
+        let mut passed: Vec<(usize, f64)> = Vec::new();
+        for (v, (p, q)) in from.iter().zip(&to).enumerate() {
+            let a: [f64; 3] = std::array::from_fn(|i| p[i] - centre[0][i]);
+            let b: [f64; 3] = std::array::from_fn(|i| q[i] - centre[1][i]);
+            let ab = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let len2: f64 = ab.iter().map(|c| c * c).sum();
+            let t = (-(a[0] * ab[0] + a[1] * ab[1] + a[2] * ab[2]) / len2).clamp(0.0, 1.0);
+            let d = (0..3)
+                .map(|i| (a[i] + t * ab[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if d < 0.125 {
+                passed.push((v, d));
+            }
+        }
+        assert_eq!(passed.len(), 1, "{passed:?}");
+        let (v, d) = passed[0];
+        assert_eq!(v, 24);
+        assert_eq!(err.lines().count(), 1, "{err}");
+        let head = format!(
+            "hinge: warning: frame 1: 1 vertex went through obstacles[0] since frame 0 (its straight path \
+             relative to the sphere passes within half its radius of its centre; the closest, vertex {v}, "
+        );
+        let tail = " m from it): its penalty contact (stiffness 2e3 N/m, margin 5e-3 m) acts where a step \
+                    ends and never held it; a smaller dt or model = \"barrier\" keeps it out\n";
+        assert!(err.starts_with(&head) && err.ends_with(tail), "{err}");
+        let printed: f64 = err[head.len()..err.len() - tail.len()].parse().unwrap();
+        assert!(
+            (printed - d).abs() <= 5e-4 * d + 1e-12 && (d - distance).abs() < 1e-9,
+            "{printed:e} against {d:e}"
+        );
+    };
+    through(
+        "tunnel.toml",
+        &[
+            ("dt = 0.016666666666666666", "dt = 0.5"),
+            ("center = [0.0, 0.0, 0.0]", "center = [0.04, 0.0, 0.0]"),
+        ],
+        [[0.04, 0.0, 0.0]; 2],
+        0.04,
+    );
+    // The same seen from the sphere: without gravity the cloth stays where it is and the sphere, moving up
+    // at 60 m/s, goes through it within the first frame (from 0.3 m below it to 0.7 m above); the centre
+    // vertex's path runs through its centre (a distance of rounding, 1e-17 m or less).
+    through(
+        "sweep.toml",
+        &[
+            ("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, 0.0]"),
+            (
+                "margin = 0.005",
+                "margin = 0.005\nmotion = { kind = \"translation\", velocity = [0.0, 0.0, 60.0] }",
+            ),
+        ],
+        [[0.0; 3], [0.0, 0.0, 1.0]],
+        0.0,
+    );
     // A barrier never lets a vertex through: no warning with the soft cloth on a barrier sphere.
     let barrier = scene_variant(
         &dir,

@@ -1466,6 +1466,39 @@ def test_run_scene_warns_once_of_vertices_a_soft_contact_lets_through(tmp_path):
     assert below and below[0] == int(m.group(1)), (below, messages)
 
 
+def test_run_scene_warns_of_vertices_a_step_carries_through_a_sphere(tmp_path):
+    # At dt = 0.5 s the folded pair falls 2.45 m in its first frame, from 0.5 m above a sphere of radius 0.2
+    # centred 0.03 m beside vertex 1 to well below it, and ends outside the sphere: one warning, naming the
+    # vertices whose straight paths between frames 0 and 1 pass within half the radius of the centre,
+    # recomputed here from the positions.
+    folded_pair_scene(tmp_path, 3, 0.3, 1e-3)
+    scene = tmp_path / "pair.toml"
+    text = scene.read_text().replace("dt = 0.0166", "dt = 0.5")
+    text = text[: text.index("[[obstacles]]")] + (
+        '[[obstacles]]\nkind = "sphere"\ncenter = [1.03, 0.0, 0.0]\nradius = 0.2\nstiffness = 2e3\nmargin = 0.005\n'
+    )
+    scene.write_text(text)
+    with pytest.warns(hinge.MeshWarning) as caught:
+        V, F, X, summary = hinge.run_scene(str(scene))
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 1, messages
+    m = re.fullmatch(
+        r"frame 1: 1 vertex went through obstacles\[0\] since frame 0 \(its straight path relative to the sphere "
+        r"passes within half its radius of its centre; the closest, vertex (\d), ([0-9.e-]+) m from it\): its "
+        r"penalty contact \(stiffness 2e3 N/m, margin 5e-3 m\) acts where a step ends and never held it; a smaller "
+        r"dt or model = \"barrier\" keeps it out \(vertices from 0\)",
+        messages[0],
+    )
+    assert m, messages
+    centre = np.array([1.03, 0.0, 0.0])
+    a, b = V - centre, X[0] - centre
+    t = np.clip(-np.einsum("ij,ij->i", a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0.0, 1.0)
+    d = np.linalg.norm(a + t[:, None] * (b - a), axis=1)
+    assert [int(v) for v in np.flatnonzero(d < 0.1)] == [int(m.group(1))] == [1], (d, messages)
+    assert float(m.group(2)) == pytest.approx(d[1], rel=1e-3), (m.group(2), d)
+    assert summary["frames"] == 3
+
+
 def test_a_static_solve_of_gravity_alone_names_the_zero_hessian():
     V, F = sheet(3, 3, 40)
     s = hinge.System(V, F).add_gravity(density=0.1)
