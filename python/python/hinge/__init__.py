@@ -275,7 +275,8 @@ class MeshWarning(UserWarning):
     """A mesh hinge can use but that may not be what was meant: vertices in no triangle, vertices split
     along a seam, or rest creases folded so far that the bending energy is a million times stiffer there than
     flat (tan bending near θ̄ = ±π). ``run_scene`` also raises it for a mesh that starts inside an obstacle,
-    and for vertices that a penalty obstacle let through its surface during the run (once per obstacle)."""
+    and for vertices that a penalty obstacle let through its surface during the run, or that a step carried
+    through a penalty sphere and out again between two frames (once per obstacle)."""
 
 
 def _warn_stiff_rest(note):
