@@ -4302,6 +4302,34 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     let lowest = (0..z.len()).min_by(|&a, &b| z[a].total_cmp(&z[b])).unwrap();
     assert_eq!(named, lowest + 1, "{err}\n{z:?}");
     assert_eq!(depth, format!("{:.3e}", 0.3 - z[lowest]), "{err}");
+    // The same pair at dt = 0.5 s above a sphere of radius 0.2 centred 0.03 m beside its second vertex
+    // (OBJ vertex 2, at (1, 0, 0.5)): it falls through the sphere within the first frame, and the line
+    // names that vertex in the file's numbering.
+    let sphere_pair = dir.join("sphere_pair.toml");
+    std::fs::write(
+        &sphere_pair,
+        "name = \"pair\"\nframes = 2\ndt = 0.5\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = \"pair.obj\"\n\
+         [material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n[bending]\n\
+         energy = \"tan-bending\"\n[[obstacles]]\nkind = \"sphere\"\ncenter = [1.03, 0.0, 0.0]\n\
+         radius = 0.2\nstiffness = 2e3\nmargin = 0.005\n",
+    )
+    .unwrap();
+    let (ok, err) = success_and_stderr(&[
+        "run",
+        sphere_pair.to_str().unwrap(),
+        "--no-frames",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with(
+            "hinge: warning: frame 1: 1 vertex went through obstacles[0] since frame 0 (its straight path \
+             relative to the sphere passes within half its radius of its centre; the closest, vertex 2, "
+        ),
+        "{err}"
+    );
     // A step that carries vertices across the sphere is never held by it: at dt = 0.5 s the cloth falls
     // 2.45 m in its first frame, from 0.3 m above the sphere's centre to 2.15 m below it, and ends outside
     // the sphere, where the depth at frame ends does not show it. The line names the vertices whose straight
