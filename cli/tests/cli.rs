@@ -4265,15 +4265,26 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
         ),
     )
     .unwrap();
-    let pair = dir.join("pair.toml");
-    std::fs::write(
-        &pair,
-        "name = \"pair\"\nframes = 30\ndt = 0.0166\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = \"pair.obj\"\n\
-         [material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n[bending]\n\
-         energy = \"tan-bending\"\n[[obstacles]]\nkind = \"plane\"\npoint = [0.0, 0.0, 0.3]\n\
-         normal = [0.0, 0.0, 1.0]\nstiffness = 1e-3\n",
-    )
-    .unwrap();
+    // A scene of the pair, the drape's material, `frames` frames of `dt` and one obstacle.
+    let pair_scene = |file: &str, frames: usize, dt: f64, obstacle: &str| {
+        let path = dir.join(file);
+        std::fs::write(
+            &path,
+            format!(
+                "name = \"pair\"\nframes = {frames}\ndt = {dt}\ngravity = [0.0, 0.0, -9.81]\n[mesh]\n\
+                 obj = \"pair.obj\"\n[material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\n\
+                 density = 0.1\n[bending]\nenergy = \"tan-bending\"\n[[obstacles]]\n{obstacle}"
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let pair = pair_scene(
+        "pair.toml",
+        30,
+        0.0166,
+        "kind = \"plane\"\npoint = [0.0, 0.0, 0.3]\nnormal = [0.0, 0.0, 1.0]\nstiffness = 1e-3\n",
+    );
     let frames = dir.join("pair_out");
     let (ok, err) = success_and_stderr(&[
         "run",
@@ -4305,15 +4316,12 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     // The same pair at dt = 0.5 s above a sphere of radius 0.2 centred 0.03 m beside its second vertex
     // (OBJ vertex 2, at (1, 0, 0.5)): it falls through the sphere within the first frame, and the line
     // names that vertex in the file's numbering.
-    let sphere_pair = dir.join("sphere_pair.toml");
-    std::fs::write(
-        &sphere_pair,
-        "name = \"pair\"\nframes = 2\ndt = 0.5\ngravity = [0.0, 0.0, -9.81]\n[mesh]\nobj = \"pair.obj\"\n\
-         [material]\nyoung = 2e5\npoisson = 0.3\nthickness = 5e-4\ndensity = 0.1\n[bending]\n\
-         energy = \"tan-bending\"\n[[obstacles]]\nkind = \"sphere\"\ncenter = [1.03, 0.0, 0.0]\n\
-         radius = 0.2\nstiffness = 2e3\nmargin = 0.005\n",
-    )
-    .unwrap();
+    let sphere_pair = pair_scene(
+        "sphere_pair.toml",
+        2,
+        0.5,
+        "kind = \"sphere\"\ncenter = [1.03, 0.0, 0.0]\nradius = 0.2\nstiffness = 2e3\nmargin = 0.005\n",
+    );
     let (ok, err) = success_and_stderr(&[
         "run",
         sphere_pair.to_str().unwrap(),
