@@ -380,7 +380,7 @@ pub enum SolverError {
         stats: Box<NewtonStats>,
     },
     /// The linear system could not be solved, even with the largest shift.
-    #[error("linear solve failed after {} iterations (shift {:e}): {source}", stats.iterations, stats.max_shift)]
+    #[error("linear solve failed after {} iterations (shift {:.3e}): {source}", stats.iterations, stats.max_shift)]
     Linear {
         /// The error.
         source: LinearError,
@@ -388,13 +388,13 @@ pub enum SolverError {
         stats: Box<NewtonStats>,
     },
     /// The line search found no decrease.
-    #[error("line search failed at iteration {} (gradient norm {:e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("line search failed at iteration {} (gradient norm {:.3e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     LineSearch {
         /// What was done.
         stats: Box<NewtonStats>,
     },
     /// The iteration limit was reached.
-    #[error("no convergence in {} iterations (gradient norm {:e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("no convergence in {} iterations (gradient norm {:.3e})", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     NotConverged {
         /// What was done.
         stats: Box<NewtonStats>,
@@ -402,7 +402,7 @@ pub enum SolverError {
     /// The iterates stopped moving before the tolerances were met: [`STALL_ITERATIONS`] accepted steps in a
     /// row shorter than [`STALL_STEP`] of the Newton direction or within F's rounding, none of which
     /// lowered the smallest gradient norm so far by a tenth (module documentation, Stopping).
-    #[error("stalled after {} iterations at gradient norm {:e}: {STALL_ITERATIONS} steps in a row were shorter than {STALL_STEP:e} of Newton's or within the energy's rounding and lowered it by less than a tenth (the rounding floor of this problem, which a gradient tolerance below it cannot meet? or an element collapsing, such as a triangle that a StVK membrane lets be crushed?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("stalled after {} iterations at gradient norm {:.3e}: {STALL_ITERATIONS} steps in a row were shorter than {STALL_STEP:e} of Newton's or within the energy's rounding and lowered it by less than a tenth (the rounding floor of this problem, which a gradient tolerance below it cannot meet? or an element collapsing, such as a triangle that a StVK membrane lets be crushed?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     Stalled {
         /// What was done.
         stats: Box<NewtonStats>,
@@ -412,7 +412,7 @@ pub enum SolverError {
     /// place: it stopped where it could not move (a collapsed triangle, say), which is no solution of the
     /// step
     /// ([`ImplicitEuler::advance`] retries the step with smaller substeps).
-    #[error("stuck after {} iterations at gradient norm {:e}: its steps no longer move the positions or lower the gradient, which is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("stuck after {} iterations at gradient norm {:.3e}: its steps no longer move the positions or lower the gradient, which is above its tolerance (a collapsed triangle?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     Stuck {
         /// What was done.
         stats: Box<NewtonStats>,
@@ -427,7 +427,7 @@ pub enum SolverError {
     /// The Hessian of F is zero on every free dof while its gradient is not: F is linear there, and Newton
     /// has neither a step nor a scale to shift by (a static solve of gravity alone, with no energy to hold
     /// the mesh).
-    #[error("the Hessian is zero on every free dof at iteration {} while the gradient is not (norm {:e}): nothing resists the load there (gravity or forces with no stiffness against them, or no energy acting on these vertices?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
+    #[error("the Hessian is zero on every free dof at iteration {} while the gradient is not (norm {:.3e}): nothing resists the load there (gravity or forces with no stiffness against them, or no energy acting on these vertices?)", stats.iterations, stats.gradient_norms.last().copied().unwrap_or(f64::NAN))]
     ZeroHessian {
         /// What was done before.
         stats: Box<NewtonStats>,
