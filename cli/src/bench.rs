@@ -859,6 +859,8 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         ));
     }
     kinds.retain(|(name, _)| wanted(name));
+    // The groups of rows beside the assembly rows, in `GROUPS`' order.
+    let [setup, psi, adjoint, solve] = GROUPS.map(&wanted);
     // The other meshes get the rows that show numbering and shape independence.
     let mut other: Vec<(&str, Kind)> = kinds
         .iter()
@@ -915,7 +917,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             }
         }
         rows.extend(assembly_rows(&mut cases, runs, &pools)?);
-        if wanted("setup") {
+        if setup {
             rows.extend(setup_rows(
                 "grid-permuted",
                 &renumber(&rest, &random_permutation(rest.n_vertices(), 1))
@@ -924,13 +926,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             )?);
         }
     }
-    if wanted("psi") {
+    if psi {
         rows.extend(psi_rows(runs));
     }
-    if wanted("adjoint") {
+    if adjoint {
         rows.extend(adjoint_rows(runs)?);
     }
-    if wanted("solve") {
+    if solve {
         for &n in &args.solver_sizes {
             rows.extend(solver_rows(n, runs.min(7))?);
         }
