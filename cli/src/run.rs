@@ -939,9 +939,11 @@ struct ContactWatch<'a> {
 
 impl<'a> ContactWatch<'a> {
     /// The set-up warning of a scene whose mesh starts inside an obstacle: one line per such penalty
-    /// obstacle (how many vertices of a face are inside its surface, the deepest and by how much). A
-    /// penalty contact pushes them out at once, with a force of its stiffness times that depth (the cloth
-    /// is thrown off). An obstacle that warned here does not warn again.
+    /// obstacle (how many vertices of a face are more than [`ContactWatch::depth`] inside its surface, the
+    /// deepest and by how much). A penalty contact pushes them out at once, with a force of its stiffness
+    /// times that depth (the cloth is thrown off). Depths below that are not warned of: a cloth laid on a
+    /// floor whose height is computed differently from the cloth's lies a rounding error inside it. An
+    /// obstacle that warned here does not warn again.
     fn start(
         scene: &Scene,
         obstacles: &[(Obstacle, Option<Motion>)],
@@ -969,18 +971,21 @@ impl<'a> ContactWatch<'a> {
             if watch.pending[i].is_none() {
                 continue;
             }
-            let Some((count, deepest)) = inside(obstacle, rest.positions(), &watch.in_face, 0.0)
+            let Some((count, deepest)) =
+                inside(obstacle, rest.positions(), &watch.in_face, watch.depth)
             else {
                 continue;
             };
             let line = format!(
-                "obstacles[{i}]: {count} {} inside it, the deepest (vertex {}) {:.3e} m below its surface; \
-                 the contact pushes {} out at once",
+                "obstacles[{i}]: {count} {} more than {:.3e} m ({:.0} % of the mean edge) inside it, the \
+                 deepest (vertex {}) {:.3e} m below its surface; the contact pushes {} out at once",
                 if count == 1 {
                     "vertex starts"
                 } else {
                     "vertices start"
                 },
+                watch.depth,
+                100.0 * LET_THROUGH_DEPTH,
                 names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
                 -deepest.1,
                 if count == 1 { "it" } else { "them" },

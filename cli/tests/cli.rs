@@ -4471,9 +4471,39 @@ fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
     assert!(ok, "{err}");
     assert_eq!(
         err,
-        "hinge: warning: obstacles[0]: 49 vertices start inside it, the deepest (vertex 24) 1.700e0 m below \
-         its surface; the contact pushes them out at once\n"
+        "hinge: warning: obstacles[0]: 49 vertices start more than 1.897e-3 m (1 % of the mean edge) inside \
+         it, the deepest (vertex 24) 1.700e0 m below its surface; the contact pushes them out at once\n"
     );
+    // A plane one rounding error above the grid (z = 0.3 + 5.6e-17): no warning, as for a cloth laid on a
+    // floor; 1 cm above it, every vertex is more than 1 % of the mean edge inside.
+    for (z, warned) in [("0.30000000000000004", false), ("0.31", true)] {
+        let plane = scene_variant(
+            &dir,
+            "plane.toml",
+            "drape",
+            &[
+                (
+                    "kind = \"sphere\"",
+                    &format!("kind = \"plane\"\npoint = [0.0, 0.0, {z}]\nnormal = [0.0, 0.0, 1.0]"),
+                ),
+                ("center = [0.0, 0.0, 0.0]\n", ""),
+                ("radius = 0.25\n", ""),
+            ],
+        );
+        let (ok, err) = run(&plane);
+        assert!(ok, "{err}");
+        if warned {
+            assert!(
+                err.starts_with(
+                    "hinge: warning: obstacles[0]: 49 vertices start more than 1.897e-3 m (1 % of the mean \
+                     edge) inside it, the deepest (vertex "
+                ) && err.contains(") 1.000e-2 m below its surface"),
+                "{err}"
+            );
+        } else {
+            assert_eq!(err, "", "z = {z}");
+        }
+    }
     // A second obstacle, a plane above the grid: both warned of, in order.
     let two = scene_with(
         &dir,
@@ -4486,7 +4516,10 @@ fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
     let lines: Vec<&str> = err.lines().collect();
     assert_eq!(lines.len(), 1, "{err}");
     assert!(
-        lines[0].starts_with("hinge: warning: obstacles[1]: 49 vertices start inside it, the deepest (vertex 0) 2.000e-1 m"),
+        lines[0].starts_with(
+            "hinge: warning: obstacles[1]: 49 vertices start more than 1.897e-3 m (1 % of the mean edge) inside \
+             it, the deepest (vertex 0) 2.000e-1 m"
+        ),
         "{err}"
     );
     let barrier = scene_variant(

@@ -1436,9 +1436,15 @@ def test_run_scene_warns_of_a_mesh_that_starts_inside_an_obstacle(tmp_path):
     with pytest.warns(hinge.MeshWarning) as caught:
         hinge.run_scene(folded_pair_scene(tmp_path, 1, 1.0, 2e3))
     messages = [str(w.message) for w in caught]
+    V = np.array(
+        [[0.4, -0.9, 0.5], [1, 0, 0.5], [0.5, 0.8 * np.cos(0.5), 0.5 + 0.8 * np.sin(0.5)], [2, 0, 0.5], [0, 0, 0.5]]
+    )
+    F = [[0, 4, 1], [2, 1, 4], [3, 1, 2]]
+    depth = 0.01 * np.mean([np.linalg.norm(V[f[k]] - V[f[(k + 1) % 3]]) for f in F for k in range(3)])
+    mantissa, exponent = f"{depth:.3e}".split("e")  # as Rust writes it: 1.066e-2
     assert messages == [
-        "obstacles[0]: 5 vertices start inside it, the deepest (vertex 0) 5.000e-1 m below its surface; "
-        "the contact pushes them out at once (vertices from 0)"
+        f"obstacles[0]: 5 vertices start more than {mantissa}e{int(exponent)} m (1 % of the mean edge) inside it, "
+        "the deepest (vertex 0) 5.000e-1 m below its surface; the contact pushes them out at once (vertices from 0)"
     ], messages
 
 
