@@ -931,10 +931,9 @@ struct ContactWatch<'a> {
     pending: Vec<Option<(f64, f64)>>,
     /// The rest mesh file's numbering, for the vertices the lines name.
     names: Option<&'a FileNumbering>,
-    /// The positions at the last frame end checked (the start: the rest positions) and its time, for the
-    /// paths through spheres; empty when no penalty sphere is watched.
-    last: Vec<Vector3<f64>>,
-    last_time: f64,
+    /// The positions at the last frame end checked (at first the rest positions) and its time, for the
+    /// paths through spheres ([`passed_through`]); `None` once no penalty sphere is pending.
+    last: Option<(Vec<Vector3<f64>>, f64)>,
 }
 
 impl<'a> ContactWatch<'a> {
@@ -964,8 +963,7 @@ impl<'a> ContactWatch<'a> {
                 })
                 .collect(),
             names,
-            last: Vec::new(),
-            last_time: 0.0,
+            last: None,
         };
         for (i, (obstacle, _)) in obstacles.iter().enumerate() {
             if watch.pending[i].is_none() {
@@ -986,7 +984,7 @@ impl<'a> ContactWatch<'a> {
                 },
                 watch.depth,
                 100.0 * LET_THROUGH_DEPTH,
-                names.map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
+                watch.vertex(deepest.0),
                 -deepest.1,
                 if count == 1 { "it" } else { "them" },
             );
@@ -994,9 +992,15 @@ impl<'a> ContactWatch<'a> {
             watch.pending[i] = None;
         }
         if watch.watches_a_sphere(obstacles) {
-            watch.last = rest.positions().to_vec();
+            watch.last = Some((rest.positions().to_vec(), 0.0));
         }
         watch
+    }
+
+    /// Vertex `v` as the lines name it: in the mesh file's numbering when there is one.
+    fn vertex(&self, v: usize) -> String {
+        self.names
+            .map_or_else(|| v.to_string(), |n| n.vertex_number(v))
     }
 
     /// Whether a penalty sphere that has not warned yet is watched (its paths need the last positions).
@@ -1028,83 +1032,101 @@ impl<'a> ContactWatch<'a> {
         if self.pending.iter().all(Option::is_none) {
             return;
         }
-        let depth = self.depth;
-        // Where the obstacles were at the last frame end, for the paths (at a frame end only).
-        let before = (when.is_some() && self.last.len() == x.len())
-            .then(|| obstacles_at(obstacles, self.last_time));
+        // The last frame end's positions, and the obstacles placed then (at a frame end only).
+        let before = match (when, &self.last) {
+            (Some(k), Some((last, last_time))) => {
+                Some((k, last, obstacles_at(obstacles, *last_time)))
+            }
+            _ => None,
+        };
         for (i, obstacle) in obstacles_at(obstacles, time).iter().enumerate() {
-            let Some((stiffness, margin)) = self.pending[i] else {
+            let Some(contact) = self.pending[i] else {
                 continue;
             };
-            let Some((count, deepest)) = inside(obstacle, x, &self.in_face, depth) else {
-                let (Some(k), Some(before)) = (when, &before) else {
-                    continue;
-                };
-                let Some((count, closest)) =
-                    passed_through(&before[i], obstacle, &self.last, x, &self.in_face)
-                else {
-                    continue;
-                };
-                let them = if count == 1 { "it" } else { "them" };
-                let line = format!(
-                    "frame {k}: {count} {} through obstacles[{i}] since frame {} ({} straight path{} relative to \
-                     the sphere {} within half its radius of its centre; the closest, vertex {}, {:.3e} m from \
-                     it): its penalty contact (stiffness {:e} N/m, margin {:e} m) acts where a step ends and \
-                     never held {them}; a smaller dt or model = \"barrier\" keeps {them} out",
-                    if count == 1 {
-                        "vertex went"
-                    } else {
-                        "vertices went"
-                    },
-                    k - 1,
-                    if count == 1 { "its" } else { "their" },
-                    if count == 1 { "" } else { "s" },
-                    if count == 1 { "passes" } else { "pass" },
-                    self.names
-                        .map_or_else(|| closest.0.to_string(), |n| n.vertex_number(closest.0)),
-                    closest.1,
-                    stiffness,
-                    margin,
-                );
-                emit(warn.as_deref_mut(), &line);
-                self.pending[i] = None;
+            let line = if let Some(found) = inside(obstacle, x, &self.in_face, self.depth) {
+                self.let_through_line(i, when, found, contact)
+            } else if let Some((k, last, placed)) = &before
+                && let Some(found) = passed_through(&placed[i], obstacle, last, x, &self.in_face)
+            {
+                self.passed_through_line(i, *k, found, contact)
+            } else {
                 continue;
             };
-            let them = if count == 1 { "it" } else { "them" };
-            let line = format!(
-                "{}: {count} {} more than {depth:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the \
-                 deepest (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {:e} N/m, \
-                 margin {:e} m) let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
-                when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
-                if count == 1 {
-                    "vertex is"
-                } else {
-                    "vertices are"
-                },
-                100.0 * LET_THROUGH_DEPTH,
-                self.names
-                    .map_or_else(|| deepest.0.to_string(), |n| n.vertex_number(deepest.0)),
-                -deepest.1,
-                stiffness,
-                margin,
-                if when.is_some() { ", a smaller dt" } else { "" },
-            );
             emit(warn.as_deref_mut(), &line);
             self.pending[i] = None;
         }
-        if when.is_some() && !self.last.is_empty() {
+        if when.is_some() {
             if self.watches_a_sphere(obstacles) {
-                self.last.copy_from_slice(x);
-                self.last_time = time;
+                if let Some((last, last_time)) = &mut self.last {
+                    last.copy_from_slice(x);
+                    *last_time = time;
+                }
             } else {
-                self.last = Vec::new();
+                self.last = None;
             }
         }
+    }
+
+    /// The line of obstacle `i`, whose penalty contact (`(stiffness, margin)`) left `count` vertices more
+    /// than [`ContactWatch::depth`] inside it at `when` (`None`: a static equilibrium), the deepest vertex
+    /// with its distance.
+    fn let_through_line(
+        &self,
+        i: usize,
+        when: Option<usize>,
+        (count, deepest): (usize, (usize, f64)),
+        (stiffness, margin): (f64, f64),
+    ) -> String {
+        let them = if count == 1 { "it" } else { "them" };
+        format!(
+            "{}: {count} {} more than {:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the deepest \
+             (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {stiffness:e} N/m, margin \
+             {margin:e} m) let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
+            when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
+            if count == 1 {
+                "vertex is"
+            } else {
+                "vertices are"
+            },
+            self.depth,
+            100.0 * LET_THROUGH_DEPTH,
+            self.vertex(deepest.0),
+            -deepest.1,
+            if when.is_some() { ", a smaller dt" } else { "" },
+        )
+    }
+
+    /// The line of sphere `i`, through which `count` vertices went between frames k − 1 and k
+    /// ([`passed_through`]), the closest to its centre with its distance.
+    fn passed_through_line(
+        &self,
+        i: usize,
+        k: usize,
+        (count, closest): (usize, (usize, f64)),
+        (stiffness, margin): (f64, f64),
+    ) -> String {
+        let one = count == 1;
+        let them = if one { "it" } else { "them" };
+        format!(
+            "frame {k}: {count} {} through obstacles[{i}] since frame {} ({} straight path{} relative to the \
+             sphere {} within half its radius of its centre; the closest, vertex {}, {:.3e} m from it): its \
+             penalty contact (stiffness {stiffness:e} N/m, margin {margin:e} m) acts where a step ends and \
+             never held {them}; a smaller dt or model = \"barrier\" keeps {them} out",
+            if one { "vertex went" } else { "vertices went" },
+            k - 1,
+            if one { "its" } else { "their" },
+            if one { "" } else { "s" },
+            if one { "passes" } else { "pass" },
+            self.vertex(closest.0),
+            closest.1,
+        )
     }
 }
 
 /// How many of the vertices that lie in a face went through a sphere between two frame ends, and the one
-/// closest to its centre with that distance; `None` when none did or the obstacle is not a sphere. A
+/// closest to its centre with that distance; `None` when none did or the obstacle is not a sphere (a plane
+/// needs no such test: a straight path between two points outside a half-space stays outside it, so a
+/// vertex that went through a plane ends beyond it, where [`inside`] sees it). A
 /// vertex went through when its straight path from `from` (with the sphere at `before`) to `to` (with it
 /// at `now`), taken relative to the sphere's centre, passes within half the radius of the centre. The
 /// steps of implicit Euler move each vertex along such straight paths, and a path that starts and ends
