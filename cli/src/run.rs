@@ -975,15 +975,14 @@ impl<'a> ContactWatch<'a> {
                 continue;
             };
             let line = format!(
-                "obstacles[{i}]: {count} {} more than {:.3e} m ({:.0} % of the mean edge) inside it, the \
-                 deepest (vertex {}) {:.3e} m below its surface; the contact pushes {} out at once",
+                "obstacles[{i}]: {count} {} {} inside it, the deepest (vertex {}) {:.3e} m below its \
+                 surface; the contact pushes {} out at once",
                 if count == 1 {
                     "vertex starts"
                 } else {
                     "vertices start"
                 },
-                watch.depth,
-                100.0 * LET_THROUGH_DEPTH,
+                watch.beyond(),
                 watch.vertex(deepest.0),
                 -deepest.1,
                 if count == 1 { "it" } else { "them" },
@@ -995,6 +994,15 @@ impl<'a> ContactWatch<'a> {
             watch.last = Some((rest.positions().to_vec(), 0.0));
         }
         watch
+    }
+
+    /// The depth a warning counts from, as the lines give it: "more than 1.897e-3 m (1 % of the mean edge)".
+    fn beyond(&self) -> String {
+        format!(
+            "more than {:.3e} m ({:.0} % of the mean edge)",
+            self.depth,
+            100.0 * LET_THROUGH_DEPTH
+        )
     }
 
     /// Vertex `v` as the lines name it: in the mesh file's numbering when there is one.
@@ -1079,7 +1087,7 @@ impl<'a> ContactWatch<'a> {
     ) -> String {
         let them = if count == 1 { "it" } else { "them" };
         format!(
-            "{}: {count} {} more than {:.3e} m ({:.0} % of the mean edge) inside obstacles[{i}], the deepest \
+            "{}: {count} {} {} inside obstacles[{i}], the deepest \
              (vertex {}) {:.3e} m below its surface: its penalty contact (stiffness {stiffness:e} N/m, margin \
              {margin:e} m) let {them} through; a stiffer contact{} or model = \"barrier\" keeps {them} out",
             when.map_or_else(|| "the equilibrium".to_string(), |k| format!("frame {k}")),
@@ -1088,8 +1096,7 @@ impl<'a> ContactWatch<'a> {
             } else {
                 "vertices are"
             },
-            self.depth,
-            100.0 * LET_THROUGH_DEPTH,
+            self.beyond(),
             self.vertex(deepest.0),
             -deepest.1,
             if when.is_some() { ", a smaller dt" } else { "" },
