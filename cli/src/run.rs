@@ -1244,13 +1244,37 @@ fn tan_note(energy: &str) -> &'static str {
 
 /// A solver error's message; with `names` (a mesh file's numbering), an evaluation error names its vertices
 /// and faces as the file counts them ([`hinge_core::EvalError::describe`]).
+///
+/// A solve that stopped short of convergence (line search, iteration limit, stalled, stuck, linear
+/// solve) also says where its residual is: `…; the largest residual force, 2.345e-1 N, is at vertex 7`
+/// ([`NewtonStats::largest_residual`]; with `names`, the vertex as the file counts it, with its line).
 pub fn solver_message(e: &SolverError, names: Option<&FileNumbering>) -> String {
     match (e, names) {
         (SolverError::Eval { source, .. }, Some(n)) => {
             format!("evaluation failed: {} {}", source.describe(n), n.note())
         }
+        (
+            SolverError::LineSearch { stats }
+            | SolverError::NotConverged { stats }
+            | SolverError::Stalled { stats }
+            | SolverError::Stuck { stats }
+            | SolverError::Linear { stats, .. },
+            _,
+        ) => match stats.largest_residual {
+            Some((v, force)) => format!(
+                "{e}; the largest residual force, {force:.3e} N, is at {}",
+                name_vertex(v, names)
+            ),
+            None => e.to_string(),
+        },
         _ => e.to_string(),
     }
+}
+
+/// Vertex `v` in a message: `vertex 7 (line 12)` in the mesh file's numbering with `names`, `vertex 7`
+/// (from 0) without.
+fn name_vertex(v: usize, names: Option<&FileNumbering>) -> String {
+    names.map_or_else(|| format!("vertex {v}"), |n| n.vertex(v))
 }
 
 /// [`simulate`] with the output's format chosen, stopping when `stop` is raised: after the current frame, or,
@@ -1572,9 +1596,9 @@ pub fn simulate_observed(
 }
 
 /// The observer of `hinge run --trace`: [`trace_line`] on standard output.
-fn tracer() -> Observer {
-    Box::new(|r: &IterationReport| {
-        println!("{}", trace_line(r));
+fn tracer(names: Option<FileNumbering>) -> Observer {
+    Box::new(move |r: &IterationReport| {
+        println!("{}", trace_line(r, names.as_ref()));
         let _ = std::io::stdout().flush();
     })
 }
@@ -1616,7 +1640,9 @@ pub fn static_progress(
 /// with `, definite` for a step of the definite Hessian ([`Globalization::ProjectOnDemand`]),
 /// `, accelerated` for a full step corrected by geodesic acceleration
 /// ([`NewtonParams::geodesic_acceleration`]) and `, stage k/n` in a membrane continuation. I counts from 1 in each solve (each substep, each attempt).
-pub fn trace_line(r: &IterationReport) -> String {
+/// The line ends with where the residual is, `, largest at vertex V (… N)`
+/// ([`IterationReport::largest_residual`]; V in the mesh file's numbering with `names`, from 0 without).
+pub fn trace_line(r: &IterationReport, names: Option<&FileNumbering>) -> String {
     let mut line = format!(
         "  newton {}: F = {:.10e}, |grad F| = {:.3e} N, |dx| = {:.3e} m, alpha = {}, shift = {:.3e}",
         r.iteration, r.energy, r.gradient_norm, r.step_norm, r.step_length, r.shift
@@ -1629,6 +1655,10 @@ pub fn trace_line(r: &IterationReport) -> String {
     }
     if let Some((k, n)) = r.stage {
         line.push_str(&format!(", stage {k}/{n}"));
+    }
+    if let Some((v, force)) = r.largest_residual {
+        let v = names.map_or_else(|| v.to_string(), |n| n.vertex_number(v));
+        line.push_str(&format!(", largest at vertex {v} ({force:.3e} N)"));
     }
     line
 }
@@ -1738,7 +1768,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     let summary = if args.statics {
         // A static solve of a large soft shell takes minutes: a line every few seconds shows it moving.
         let progress = if args.trace {
-            tracer()
+            tracer(names.cloned())
         } else {
             static_progress(STATIC_PROGRESS_EVERY, |line| {
                 println!("{line}");
@@ -1767,7 +1797,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                 Hooks {
                     stop: Some(&*INTERRUPTED),
                     names,
-                    observer: args.trace.then(tracer),
+                    observer: args.trace.then(|| tracer(names.cloned())),
                     warn: None,
                 },
                 |frame, fs, seconds, _| {

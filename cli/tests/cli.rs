@@ -1307,6 +1307,14 @@ fn failed_steps_are_retried_in_substeps_and_an_unconvergeable_run_stops_on_one_l
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("frame ") && err.contains("dt/2"), "{err}");
+    // Where the last attempt stopped: a vertex of the built-in grid (11 × 11), numbered from 0.
+    let at: usize = err
+        .split_once("; the largest residual force, ")
+        .and_then(|(_, t)| t.split_once(" N, is at vertex "))
+        .and_then(|(_, t)| t.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no vertex named in {err}"));
+    assert!(at < 121, "{err}");
     // The frames before the failed one are written, the failed one is not.
     let failed: usize = err
         .split("frame ")
@@ -3679,6 +3687,39 @@ fn a_rest_crease_folded_flat_is_named_at_set_up_and_in_the_failure() {
             "{err}"
         );
     }
+    // Where the solve stopped: the error names the vertex with the largest residual force as the file
+    // counts it, with its line (the comment line puts vertex k on line k + 1), and the force; the trace's
+    // last iteration names the same vertex and force.
+    let o = hinge(&[
+        "run",
+        flat.to_str().unwrap(),
+        "--no-frames",
+        "--trace",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let last = stdout
+        .lines()
+        .rfind(|l| l.starts_with("  newton "))
+        .unwrap_or_else(|| panic!("no trace in {stdout}"));
+    let (v, force) = last
+        .split_once(", largest at vertex ")
+        .and_then(|(_, t)| t.strip_suffix(" N)"))
+        .and_then(|t| t.split_once(" ("))
+        .unwrap_or_else(|| panic!("{last}"));
+    let number: usize = v.parse().unwrap();
+    assert!((1..=5).contains(&number), "{last}");
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    let err = stderr.trim_end().lines().last().unwrap();
+    assert!(
+        err.contains(&format!(
+            "; the largest residual force, {force} N, is at vertex {number} (line {})",
+            number + 1
+        )),
+        "{last}\n{err}"
+    );
     // A crease folded to 2.5 rad (1/cos⁴ ≈ 100), and discrete shells folded flat: no warning.
     for path in [
         write("mild", 2.5, "tan-bending"),
@@ -3938,6 +3979,8 @@ fn an_absurd_load_fails_with_a_finite_gradient_norm() {
         err.contains("frame 1") && err.contains("gradient norm 1."),
         "{err}"
     );
+    // One vertex's force, finite too.
+    assert!(err.contains("; the largest residual force, "), "{err}");
     assert!(!err.contains("inf"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -4049,6 +4092,18 @@ fn check_trace(dir: &Path, args: &[&str], frames: usize) {
             shifted += usize::from(trace_value(line, "shift") > 0.0);
             extrapolated += usize::from(trace_value(line, "alpha") > 1.0);
             accelerated += usize::from(line.contains(", accelerated"));
+            // Where the residual is: one vertex's force, at most ‖∇F‖ and at least ‖∇F‖ / √n.
+            let force: f64 = line
+                .split_once(", largest at vertex ")
+                .and_then(|(_, t)| t.strip_suffix(" N)"))
+                .and_then(|t| t.split_once(" ("))
+                .and_then(|(_, f)| f.parse().ok())
+                .unwrap_or_else(|| panic!("{args:?}: {line}"));
+            let gradient = trace_value(line, "|grad F|");
+            assert!(
+                force <= gradient && gradient <= force * 1e4_f64.sqrt(),
+                "{args:?}: {line}"
+            );
             pending.push(line);
         } else if line.starts_with("frame ") {
             frame_lines.push(line);
@@ -4156,7 +4211,7 @@ fn run_trace_shows_every_newton_iteration_and_changes_nothing() {
         .unwrap()
         .split_once('/')
         .unwrap();
-    assert_eq!(k, n, "{last}");
+    assert_eq!(Some(k), n.split(',').next(), "{last}");
     assert!(
         !text.contains("static: "),
         "progress lines are replaced: {text}"

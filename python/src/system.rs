@@ -1,7 +1,7 @@
 //! `hinge.System`, `hinge.solve_static` and `hinge.ImplicitEuler`: energies composed on one mesh, and the
 //! Newton solvers of hinge-solver on them.
 
-use hinge_cli::run::StiffRest;
+use hinge_cli::run::{StiffRest, solver_message};
 use hinge_cli::scene::CustomPsi;
 use hinge_core::TriMesh;
 use hinge_core::bending::{BendingModel, HessianMode, Method, Parallelism, Request};
@@ -290,6 +290,7 @@ fn stats_dict<'py>(py: Python<'py>, s: &NewtonStats) -> PyResult<Bound<'py, PyDi
         s.gradient_norms.last().copied().unwrap_or(f64::NAN),
     )?;
     d.set_item("gradient_norms", s.gradient_norms.clone())?;
+    d.set_item("largest_residual", s.largest_residual)?;
     Ok(d)
 }
 
@@ -680,7 +681,7 @@ pub fn solve_static<'py>(
             .map_err(|e| e.to_string())?;
         newton.set_stop(Some(stop.clone()));
         minimize_continued_all(&mut newton, sys, &mut x, &parameters, &stages)
-            .map_err(|e| format!("static solve: {e}"))
+            .map_err(|e| format!("static solve: {}", solver_message(&e, None)))
     });
     // Ctrl-C: the solve ended with the system's parameters set back; nothing is returned.
     if let Some(e) = signal {
@@ -862,7 +863,7 @@ impl PyStepper {
                     &mut st.v,
                     SubstepPolicy::default(),
                 )
-                .map_err(|e| e.to_string())
+                .map_err(|e| solver_message(&e, None))
         });
         // Ctrl-C: a frame that saw it is undone (state and time as before the call); one that finished
         // first is kept, and the interrupt is raised after it.
@@ -905,11 +906,13 @@ type Frames = Vec<Vec<Vector3<f64>>>;
 /// `beam1`, …) or a TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh,
 /// the positions of every frame as a (frames, n, 3) array, and the run's counts, per frame too
 /// (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`). With `trace`, `summary["trace"]`
-/// is a (k, 9) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
+/// is a (k, 11) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
 /// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift, definite (1 for a step with the
-/// definite Hessian of `globalization = "project-on-demand"`, else 0) and accelerated (1 for a step
-/// corrected by geodesic acceleration, else 0); the two flags' column sums are the summary's
-/// `definite_iterations` and `accelerated_iterations`.
+/// definite Hessian of `globalization = "project-on-demand"`, else 0), accelerated (1 for a step
+/// corrected by geodesic acceleration, else 0), and where the residual is: the vertex (a row of `V`) whose
+/// free dofs carry the largest force ‖∂F/∂x_v‖ at the new iterate and that force (−1 and 0 when no dof is
+/// free); the two flags' column sums are the summary's `definite_iterations` and
+/// `accelerated_iterations`.
 #[pyfunction]
 #[pyo3(signature = (scene, frames=None, trace=false))]
 #[allow(clippy::type_complexity)]
@@ -941,7 +944,7 @@ pub fn run_scene<'py>(
     }
     let mut xs: Frames = Vec::with_capacity(sc.frames);
     // The trace's rows, and the frame the observer's iterations belong to (the frames done so far).
-    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 9]>::new()));
+    let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 11]>::new()));
     let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
     let observer: Option<hinge_solver::newton::Observer> = trace.then(|| {
         let (rows, frame) = (std::sync::Arc::clone(&rows), std::sync::Arc::clone(&frame));
@@ -958,6 +961,8 @@ pub fn run_scene<'py>(
                     r.shift,
                     f64::from(u8::from(r.definite)),
                     f64::from(u8::from(r.accelerated)),
+                    r.largest_residual.map_or(-1.0, |(v, _)| v as f64),
+                    r.largest_residual.map_or(0.0, |(_, f)| f),
                 ]);
             }
         }) as hinge_solver::newton::Observer
@@ -1033,7 +1038,7 @@ pub fn run_scene<'py>(
         d.set_item(
             "trace",
             flat.into_pyarray(py)
-                .reshape([count, 9])
+                .reshape([count, 11])
                 .map_err(value_error)?,
         )?;
     }

@@ -914,9 +914,9 @@ def check_trace(scene, frames):
     assert sum(its) == s["newton_iterations"] and sum(facts) == s["factorizations"]
     assert sum(subs) == s["substeps"] and all(f >= i for i, f in zip(its, facts))
     t = s["trace"]
-    assert t.shape == (s["newton_iterations"], 9)
+    assert t.shape == (s["newton_iterations"], 11)
     # The flags are 0 or 1, and each column adds up to the summary's count.
-    assert set(np.unique(t[:, 7:])) <= {0.0, 1.0}
+    assert set(np.unique(t[:, 7:9])) <= {0.0, 1.0}
     assert t[:, 7].sum() == s["definite_iterations"]
     assert t[:, 8].sum() == s["accelerated_iterations"]
     for k in range(frames):
@@ -925,6 +925,10 @@ def check_trace(scene, frames):
         # One solve per frame here (no substeps): iterations 1, 2, …, and the last at the tolerance.
         assert list(rows[:, 1]) == list(range(1, its[k] + 1)), k
         assert rows[-1, 3] <= 1e-6, k
+    # Where the residual is: a vertex (a row of V) whose force is at most ‖∇F‖ and at least ‖∇F‖ / √n.
+    n = X.shape[1]
+    assert (t[:, 9] == np.round(t[:, 9])).all() and (t[:, 9] >= 0).all() and (t[:, 9] < n).all()
+    assert (t[:, 10] <= t[:, 3]).all() and (t[:, 3] <= t[:, 10] * np.sqrt(n) * (1 + 1e-12)).all()
     # Extrapolated steps are in it.
     assert (t[:, 5] > 1).any()
     return t
@@ -1511,3 +1515,32 @@ def test_a_static_solve_of_gravity_alone_names_the_zero_hessian():
     with pytest.raises(ValueError, match="the Hessian is zero on every free dof at iteration 0 while the gradient is not"):
         hinge.solve_static(s, V)
 
+
+
+def test_solves_say_where_the_residual_is():
+    """``stats["largest_residual"]``: the free vertex with the largest force at the returned positions,
+    recomputed from ``System.evaluate``; the pinned vertices' reactions (larger) are not residuals. A solve
+    that fails names that vertex (a row of V) in its ValueError."""
+    V, F = sheet(6, 3, 41)
+    s = hinge.System(V, F).add_bending(energy="tan-bending", k=1e-3).add_membrane(1e5, 0.3, 1e-3)
+    s.add_gravity(density=0.1)
+    pinned = np.flatnonzero(V[:, 0] <= V[:, 0].min() + 0.05)
+    s.pin(pinned)
+    free = np.setdiff1d(np.arange(len(V)), pinned)
+    # Stopped early (the gradient a thousandth of its start's) and solved: both name the free vertex whose
+    # force is largest.
+    for kwargs in ({"relative_gradient_tolerance": 1e-3, "gradient_tolerance": 0}, {}):
+        X, stats = hinge.solve_static(s, V, membrane_continuation=False, **kwargs)
+        assert stats["newton_iterations"] >= 2
+        _, g = s.evaluate(X, hessian=False)
+        force = np.linalg.norm(g.reshape(-1, 3), axis=1)
+        v, f = stats["largest_residual"]
+        assert v == free[np.argmax(force[free])]
+        assert f == pytest.approx(force[v], rel=1e-13)
+        assert f <= stats["final_gradient_norm"]
+        assert force[pinned].max() > 10 * f
+    with pytest.raises(ValueError, match=r"no convergence in 2 iterations .*; the largest residual force, .* N, "
+                                         r"is at vertex \d+$") as e:
+        hinge.solve_static(s, V, max_iterations=2, membrane_continuation=False)
+    named = int(str(e.value).rsplit(" ", 1)[1])
+    assert named in free

@@ -365,6 +365,11 @@ pub struct NewtonStats {
     pub factor_seconds: f64,
     /// Seconds in triangular solves.
     pub solve_seconds: f64,
+    /// Where the residual is at the solve's last iterate (the solution, or where a failed solve stopped):
+    /// the vertex whose free dofs carry the largest force `‖∂F/∂x_v‖`, and that norm. `None` when no
+    /// gradient was evaluated or no dof is free. It tells which part of a mesh a solve that does not
+    /// converge is stuck on (a sliver, a crushed triangle, a vertex pushed into an obstacle).
+    pub largest_residual: Option<(usize, f64)>,
 }
 
 /// Why a Newton solve failed. The caller's state is untouched.
@@ -459,11 +464,14 @@ impl NewtonStats {
     }
 
     /// Adds another solve's counters and times (iterations, halvings, factorizations, seconds; the largest
-    /// shift; the norms are appended).
+    /// shift; the norms are appended, and the later solve's [`NewtonStats::largest_residual`] is kept).
     pub fn absorb(&mut self, other: &NewtonStats) {
         self.absorb_counts(other);
         self.gradient_norms.extend_from_slice(&other.gradient_norms);
         self.step_norms.extend_from_slice(&other.step_norms);
+        if other.largest_residual.is_some() {
+            self.largest_residual = other.largest_residual;
+        }
     }
 }
 
@@ -480,6 +488,21 @@ impl SolverError {
             | SolverError::ZeroHessian { stats }
             | SolverError::Interrupted { stats } => (**stats).clone(),
             SolverError::Input(_) | SolverError::Unstable { .. } => NewtonStats::default(),
+        }
+    }
+
+    /// The stats of a solve that stopped at an iterate whose gradient is known (every kind but an
+    /// evaluation failure, input errors and explicit blow-ups).
+    fn stopped_stats_mut(&mut self) -> Option<&mut NewtonStats> {
+        match self {
+            SolverError::Linear { stats, .. }
+            | SolverError::LineSearch { stats }
+            | SolverError::NotConverged { stats }
+            | SolverError::Stalled { stats }
+            | SolverError::Stuck { stats }
+            | SolverError::ZeroHessian { stats }
+            | SolverError::Interrupted { stats } => Some(stats),
+            SolverError::Eval { .. } | SolverError::Input(_) | SolverError::Unstable { .. } => None,
         }
     }
 }
@@ -611,6 +634,9 @@ pub struct IterationReport {
     /// Whether the step was the full step corrected by geodesic acceleration
     /// ([`NewtonParams::geodesic_acceleration`]).
     pub accelerated: bool,
+    /// The vertex with the largest force `‖∂F/∂x_v‖` over its free dofs at the new iterate, and that norm
+    /// (as [`NewtonStats::largest_residual`]).
+    pub largest_residual: Option<(usize, f64)>,
     /// The continuation stage this solve is, `(k, n)` with `k` counted from 1 and the final solve at the
     /// full parameter being stage `n` ([`crate::statics::minimize_continued`], [`Newton::set_stage`]);
     /// `None` outside a continuation.
@@ -784,13 +810,22 @@ impl Newton {
             magnitude: 0.0,
         };
         let hint = self.ladder_hint;
-        let result = self.iterate(&mut solve, &mut w);
-        if result.is_ok() {
-            x.copy_from_slice(&w.cur);
-        } else {
-            // A failed solve leaves the shift memory as it found it: the shift its ladder climbed to
-            // belongs to a state that is thrown away.
-            self.ladder_hint = hint;
+        let mut result = self.iterate(&mut solve, &mut w);
+        // `w.g` is the gradient at `w.cur`, the last iterate, unless an evaluation failed on the way.
+        let largest = largest_vertex(&self.reduced.dofs, &w.g);
+        match &mut result {
+            Ok(()) => {
+                stats.largest_residual = largest;
+                x.copy_from_slice(&w.cur);
+            }
+            Err(e) => {
+                if let Some(s) = e.stopped_stats_mut() {
+                    s.largest_residual = largest;
+                }
+                // A failed solve leaves the shift memory as it found it: the shift its ladder climbed to
+                // belongs to a state that is thrown away.
+                self.ladder_hint = hint;
+            }
         }
         self.out = Some(out);
         self.work = w;
@@ -888,6 +923,7 @@ impl Newton {
                     shift,
                     definite: step_definite,
                     accelerated,
+                    largest_residual: largest_vertex(&self.reduced.dofs, &w.g),
                     stage: self.stage,
                 });
             }
@@ -1181,13 +1217,14 @@ impl Newton {
         if w.a.is_empty() {
             return (
                 alpha * norm(&w.d),
-                alpha * largest_vertex_step(&self.reduced.dofs, &w.d),
+                alpha * largest_vertex(&self.reduced.dofs, &w.d).map_or(0.0, |l| l.1),
             );
         }
         let half = 0.5 * alpha * alpha;
         w.gt.clear();
         w.gt.extend(w.d.iter().zip(&w.a).map(|(d, a)| alpha * d + half * a));
-        (norm(&w.gt), largest_vertex_step(&self.reduced.dofs, &w.gt))
+        let largest = largest_vertex(&self.reduced.dofs, &w.gt).map_or(0.0, |l| l.1);
+        (norm(&w.gt), largest)
     }
 
     /// Geodesic acceleration of the direction `w.d` into `w.a` (module documentation, Geodesic
@@ -1456,19 +1493,26 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// The largest Euclidean displacement of one vertex in the reduced step `d` (dofs grouped by vertex).
-fn largest_vertex_step(dofs: &[usize], d: &[f64]) -> f64 {
-    let mut largest = 0.0_f64;
-    let (mut vertex, mut sq) = (usize::MAX, 0.0);
-    for (&dof, &v) in dofs.iter().zip(d) {
-        if dof / 3 != vertex {
-            largest = largest.max(sq);
-            vertex = dof / 3;
-            sq = 0.0;
+/// The vertex whose entries of the reduced vector `d` (a step, a gradient; dofs grouped by vertex, in
+/// increasing order) have the largest Euclidean norm, and that norm (finite for finite entries: a norm whose
+/// sum of squares overflows is taken again scaled, as [`norm`] does); the first such vertex on a tie, and
+/// `None` for an empty `d` (or one of NaN entries only).
+fn largest_vertex(dofs: &[usize], d: &[f64]) -> Option<(usize, f64)> {
+    let mut largest: Option<(usize, f64)> = None;
+    let mut start = 0;
+    while start < dofs.len().min(d.len()) {
+        let vertex = dofs[start] / 3;
+        let mut end = start + 1;
+        while end < dofs.len().min(d.len()) && dofs[end] / 3 == vertex {
+            end += 1;
         }
-        sq += v * v;
+        let size = norm(&d[start..end]);
+        if !size.is_nan() && largest.is_none_or(|(_, l)| size > l) {
+            largest = Some((vertex, size));
+        }
+        start = end;
     }
-    largest.max(sq).sqrt()
+    largest
 }
 
 /// Places `system` at `time` ([`System::set_time`]) for a stepper's `set_time`.

@@ -2608,3 +2608,86 @@ fn geodesic_acceleration_corrects_the_newton_step_by_the_third_derivative() {
     println!("iterations with / without the acceleration: {counts:?}");
     assert!(counts[0] < counts[1], "{counts:?}");
 }
+
+/// The free vertex with the largest force ‖∂F/∂x_v‖ at `x` (pinned vertices left out), recomputed from the
+/// system's gradient, and the largest force on a pinned vertex (its reaction).
+fn largest_forces(sys: &mut System, pins: &Pins, x: &[Vector3<f64>]) -> ((usize, f64), f64) {
+    let g = sys
+        .evaluate(x, Request::GRADIENT, Parallelism::Sequential)
+        .unwrap()
+        .gradient;
+    let force = |v: usize| Vector3::new(g[3 * v], g[3 * v + 1], g[3 * v + 2]).norm();
+    let free = (0..x.len())
+        .filter(|&v| !pins.contains(v))
+        .map(|v| (v, force(v)))
+        .fold((usize::MAX, -1.0), |b, c| if c.1 > b.1 { c } else { b });
+    let pinned = pins
+        .vertices()
+        .iter()
+        .map(|&v| force(v))
+        .fold(0.0, f64::max);
+    (free, pinned)
+}
+
+/// Where the residual is ([`NewtonStats::largest_residual`], the observer's `largest_residual`): after each
+/// of a cantilever's first Newton iterations (a randomly numbered strip, clamped at one end), the free
+/// vertex whose force is largest, recomputed from the system's gradient at the iterate: the clamped
+/// vertices' reactions, larger still, are not residuals and never named. A solve that fails carries where
+/// it stopped in its error, as its last iteration reported it.
+#[test]
+fn the_largest_residual_is_the_free_vertex_with_the_largest_force() {
+    use hinge_solver::newton::IterationReport;
+    use std::sync::{Arc, Mutex};
+    let (rest, mut sys, pins) = thin_strip();
+    let one = NewtonParams {
+        single_iteration: true,
+        ..NewtonParams::default()
+    };
+    let mut newton = Newton::new(&sys, &pins, default_solver(), one).unwrap();
+    let mut x = rest.positions().to_vec();
+    let mut named = Vec::new();
+    let (mut reactions_larger, mut converged) = (0, false);
+    // Iteration by iteration to the equilibrium (the strip converges in about fifty).
+    for _ in 0..200 {
+        let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+        let ((v, force), reaction) = largest_forces(&mut sys, &pins, &x);
+        let (sv, sf) = stats.largest_residual.unwrap();
+        assert_eq!(sv, v);
+        assert!((sf - force).abs() <= 1e-14 * force, "{sf} vs {force}");
+        // The last entry of the gradient norms is the same residual, over every free vertex.
+        let gn = *stats.gradient_norms.last().unwrap();
+        assert!(sf <= gn && gn <= sf * ((x.len() - pins.vertices().len()) as f64).sqrt());
+        reactions_larger += usize::from(reaction > 2.0 * force);
+        named.push(v);
+        if gn <= 1e-9 {
+            converged = true;
+            break;
+        }
+    }
+    assert!(converged);
+    // The test could tell pinned from free: the reactions were the larger forces, by far at the end.
+    assert!(
+        reactions_larger >= 10,
+        "{reactions_larger} of {}",
+        named.len()
+    );
+    // A solve stopped by its iteration limit: the error says where, as its last iteration reported it
+    // (the same first iteration as above).
+    let seen: Arc<Mutex<Vec<IterationReport>>> = Arc::default();
+    let sink = seen.clone();
+    let limited = NewtonParams {
+        max_iterations: 1,
+        ..NewtonParams::default()
+    };
+    let mut failing = Newton::new(&sys, &pins, default_solver(), limited).unwrap();
+    failing.set_observer(Some(Box::new(move |r: &IterationReport| {
+        sink.lock().unwrap().push(*r)
+    })));
+    let mut y = rest.positions().to_vec();
+    let err = failing.minimize(&mut sys, &mut y, None).unwrap_err();
+    assert!(matches!(err, SolverError::NotConverged { .. }), "{err}");
+    assert_eq!(&y, rest.positions());
+    let last = seen.lock().unwrap().last().unwrap().largest_residual;
+    assert_eq!(err.stats().largest_residual, last);
+    assert_eq!(last.map(|l| l.0), Some(named[0]));
+}

@@ -447,7 +447,9 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
     ``line_search_steps``, ``factorizations``, ``definite_iterations``, ``accelerated_iterations``,
     ``final_gradient_norm``,
-    ``gradient_norms``). A solve stops when the gradient norm is at most ``gradient_tolerance`` (absolute, in
+    ``gradient_norms``, ``largest_residual``: ``(vertex, force)``, the free vertex whose force ‖∂E/∂x_v‖ is
+    largest at ``X`` and that force, or None when nothing is free; a solve that fails raises ``ValueError``
+    naming that vertex where it stopped). A solve stops when the gradient norm is at most ``gradient_tolerance`` (absolute, in
     the system's force units; 0 leaves convergence to the other stopping tests, as in scene files).
     ``globalization`` is ``"shifted-exact"`` (the exact Hessian, a diagonal shift when it
     does not factor) or ``"project-on-demand"`` (each energy's definite Hessian after a failed factorization);
@@ -533,7 +535,8 @@ def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
 class ImplicitEuler:
     """Implicit Euler on a system: ``stepper = hinge.ImplicitEuler(system, X0, dt, density)``, then
     ``X, stats = stepper.step()`` per frame (a failing step is retried in substeps; a frame that cannot be
-    taken raises ``ValueError`` and leaves positions, velocities and time as they were). ``globalization``,
+    taken raises ``ValueError``, naming the vertex with the largest residual force where its last attempt
+    stopped, and leaves positions, velocities and time as they were). ``globalization``,
     ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance``, ``remember_shift`` and
     ``geodesic_acceleration`` as in
     ``solve_static`` (the relative gradient test is against the gradient at the step's start, the inertial
@@ -572,12 +575,15 @@ def run_scene(scene, frames=None, trace=False):
     """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
     ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
     (frames, n, 3) array, and the run's counts (a dict; per frame in ``frame_newton_iterations``,
-    ``frame_factorizations``, ``frame_substeps``). With ``trace=True``, ``summary["trace"]`` is a (k, 9)
+    ``frame_factorizations``, ``frame_substeps``). With ``trace=True``, ``summary["trace"]`` is a (k, 11)
     array with a row per accepted Newton iteration, as ``hinge run --trace`` prints them: frame (from 0),
     iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α (the line search's step length), shift, definite
-    (1 for a step with the definite Hessian of ``globalization = "project-on-demand"``, else 0) and
-    accelerated (1 for a step corrected by geodesic acceleration, else 0); the flag columns add up to the
-    summary's ``definite_iterations`` and ``accelerated_iterations``."""
+    (1 for a step with the definite Hessian of ``globalization = "project-on-demand"``, else 0),
+    accelerated (1 for a step corrected by geodesic acceleration, else 0), and where the residual is: the
+    vertex (a row of ``V``) whose free coordinates carry the largest force ‖∂F/∂x_v‖ at the new iterate,
+    and that force (−1 and 0 when no coordinate is free); the flag columns add up to the summary's
+    ``definite_iterations`` and ``accelerated_iterations``. A run that fails raises ``ValueError`` whose
+    message names the vertex with the largest residual force where the solve stopped."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
     if frames is not None:
