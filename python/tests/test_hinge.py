@@ -1544,3 +1544,8 @@ def test_solves_say_where_the_residual_is():
         hinge.solve_static(s, V, max_iterations=2, membrane_continuation=False)
     named = int(str(e.value).rsplit(" ", 1)[1])
     assert named in free
+    # A time step's stats say it too, at the frame's end (the inertia term included, so not recomputed here:
+    # a free vertex, at most the final gradient norm).
+    X, stats = hinge.ImplicitEuler(s, V, 0.01, 0.1, gradient_tolerance=1e-9).step()
+    v, f = stats["largest_residual"]
+    assert v in free and 0 < f <= stats["final_gradient_norm"] <= 1e-9
