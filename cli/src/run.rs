@@ -34,6 +34,7 @@ use hinge_solver::linear::{
     ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearSolver, PcgJacobi, default_solver,
 };
 
+use crate::checkpoint::Checkpoint;
 use crate::scene::Scene;
 use hinge_solver::explicit::SymplecticEuler;
 use hinge_solver::newton::{
@@ -69,6 +70,13 @@ pub struct RunArgs {
     /// Do not write frames or pictures (summary only).
     #[arg(long)]
     pub no_frames: bool,
+    /// Continue a time-stepped run from a checkpoint (the `checkpoint.txt` every run writes to its output
+    /// directory when it ends, stops or fails: then it holds the last good frame). The frames after the
+    /// checkpoint's, up to the scene's `frames` (or `--frames`), are written with their own numbers; with
+    /// the scene unchanged they are bitwise those of the run that was not stopped. The scene may change
+    /// (a smaller `dt`, a stiffer contact, more frames) as long as its mesh is the checkpoint's.
+    #[arg(long, value_name = "FILE")]
+    pub resume: Option<PathBuf>,
     /// Frame file format: `obj` or `ply` (binary little endian).
     #[arg(long, value_enum, default_value_t = FrameFormat::Obj)]
     pub format: FrameFormat,
@@ -526,7 +534,15 @@ pub fn equilibrium_observed(
         names,
         observer,
         mut warn,
+        checkpoint: _,
+        resume,
     } = hooks;
+    if resume.is_some() {
+        return Err(
+            "--resume continues a time-stepped run; a static solve (--static) starts from rest"
+                .into(),
+        );
+    }
     let start = Instant::now();
     let Built {
         mut system,
@@ -556,7 +572,14 @@ pub fn equilibrium_observed(
     let mut x = rest.positions().to_vec();
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    let mut watch = ContactWatch::start(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let mut watch = ContactWatch::start(
+        scene,
+        &obstacles,
+        rest,
+        (rest.positions(), 0.0),
+        names,
+        warn.as_deref_mut(),
+    );
     let (parameter, stages) = membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| format!("static solve: {}", solver_message(&e, names)))?;
     let unsupported = pins.vertices().is_empty() && scene.gravity.iter().any(|g| *g != 0.0);
@@ -858,6 +881,63 @@ fn check_initial_state(
         })
 }
 
+/// Prepares a run resumed from checkpoint `c` (whose positions and velocities the caller starts from):
+/// checks it against the scene (vertex count, frame within the scene's frames, finite values, plasticity
+/// on both sides or neither) and hands the plastic state to `system` and the shift memory to the implicit
+/// stepper.
+fn resume_state(
+    c: &Checkpoint,
+    scene: &Scene,
+    rest: &TriMesh,
+    system: &mut System,
+    stepper: &mut Stepper,
+) -> Result<(), String> {
+    let n = rest.n_vertices();
+    if c.positions.len() != n || c.velocities.len() != n {
+        return Err(format!(
+            "--resume: the checkpoint has {} vertices, the scene's mesh {n}",
+            c.positions.len()
+        ));
+    }
+    if c.frame >= scene.frames {
+        return Err(format!(
+            "--resume: the checkpoint is at frame {} and the scene has {} frames: nothing to run \
+             (--frames sets more)",
+            c.frame, scene.frames
+        ));
+    }
+    for (what, values) in [("position", &c.positions), ("velocity", &c.velocities)] {
+        if let Some(i) = values.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
+            return Err(format!("--resume: vertex {i}: {what} is not finite"));
+        }
+    }
+    match (&c.plastic, system.plastic_state().is_some()) {
+        (Some((theta_bar, alpha)), true) => system
+            .set_plastic_state(theta_bar, alpha)
+            .map_err(|e| format!("--resume: plastic state: {e}"))?,
+        (None, false) => {}
+        (Some(_), false) => {
+            return Err(
+                "--resume: the checkpoint has a plastic state but the scene has no \
+                 [bending.plasticity]"
+                    .into(),
+            );
+        }
+        (None, true) => {
+            return Err(
+                "--resume: the scene has [bending.plasticity] but the checkpoint no plastic state"
+                    .into(),
+            );
+        }
+    }
+    if let Stepper::Implicit(s) = stepper {
+        s.newton_mut()
+            .restore_shift_memory(c.shift_memory)
+            .map_err(|e| format!("--resume: {e}"))?;
+    }
+    Ok(())
+}
+
 /// The set-up warning of a scene with stiff rest hinges ([`StiffRest`]), one line: to `warn`, or on stderr
 /// as `hinge: warning: …` without one.
 fn warn_stiff_rest(
@@ -942,11 +1022,13 @@ impl<'a> ContactWatch<'a> {
     /// deepest and by how much). A penalty contact pushes them out at once, with a force of its stiffness
     /// times that depth (the cloth is thrown off). Depths below that are not warned of: a cloth laid on a
     /// floor whose height is computed differently from the cloth's lies a rounding error inside it. An
-    /// obstacle that warned here does not warn again.
+    /// obstacle that warned here does not warn again. `(x0, t0)`: the run's start state and its time (the
+    /// rest state at 0, or a checkpoint's), with the obstacles placed at `t0`.
     fn start(
         scene: &Scene,
         obstacles: &[(Obstacle, Option<Motion>)],
         rest: &TriMesh,
+        (x0, t0): (&[Vector3<f64>], f64),
         names: Option<&'a FileNumbering>,
         mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
     ) -> Self {
@@ -965,13 +1047,11 @@ impl<'a> ContactWatch<'a> {
             names,
             last: None,
         };
-        for (i, (obstacle, _)) in obstacles.iter().enumerate() {
+        for (i, obstacle) in obstacles_at(obstacles, t0).iter().enumerate() {
             if watch.pending[i].is_none() {
                 continue;
             }
-            let Some((count, deepest)) =
-                inside(obstacle, rest.positions(), &watch.in_face, watch.depth)
-            else {
+            let Some((count, deepest)) = inside(obstacle, x0, &watch.in_face, watch.depth) else {
                 continue;
             };
             let line = format!(
@@ -991,7 +1071,7 @@ impl<'a> ContactWatch<'a> {
             watch.pending[i] = None;
         }
         if watch.watches_a_sphere(obstacles) {
-            watch.last = Some((rest.positions().to_vec(), 0.0));
+            watch.last = Some((x0.to_vec(), t0));
         }
         watch
     }
@@ -1197,6 +1277,13 @@ pub struct Hooks<'a> {
     /// a penalty contact let through its obstacle's surface, once per obstacle); without it they are printed
     /// on stderr with that prefix.
     pub warn: Option<Warn<'a>>,
+    /// A time-stepped run writes its [`Checkpoint`] to this file when it ends: after its last frame, when
+    /// stopped, and when a frame fails (then the last good frame's). Static solves write none.
+    pub checkpoint: Option<&'a Path>,
+    /// A time-stepped run starts from this checkpoint instead of the rest state (its frame, time,
+    /// positions, velocities, shift memory and plastic state) and steps the frames after it up to the
+    /// scene's `frames`. A static solve refuses it.
+    pub resume: Option<&'a Checkpoint>,
 }
 
 impl<'a> Hooks<'a> {
@@ -1316,6 +1403,8 @@ pub fn simulate_observed(
         names,
         observer,
         mut warn,
+        checkpoint,
+        resume,
     } = hooks;
     // Shared by the steppers a run makes (a new one when pins are released).
     let observer = observer.map(|o| Arc::new(std::sync::Mutex::new(o)));
@@ -1396,14 +1485,63 @@ pub fn simulate_observed(
             .map(|g| g.release.is_none_or(|r| t < r))
             .collect()
     };
-    let mut active = active_at(0.0);
+    // Where the run starts: the rest state at t = 0, or a checkpoint's frame. Frame k ends at
+    // `origin + k dt`, with `origin` = 0 unless a checkpoint taken with another dt is resumed.
+    let first_frame = resume.map_or(0, |c| c.frame);
+    let origin = resume.map_or(0.0, |c| c.time - c.frame as f64 * scene.dt);
+    let t_start = origin + first_frame as f64 * scene.dt;
+    let mut active = active_at(t_start);
     let mut stepper = make_stepper(&system, &active, solver)?;
-    let (mut x, mut v) = (rest.positions().to_vec(), vec![Vector3::zeros(); n]);
+    let (mut x, mut v) = match resume {
+        Some(c) => {
+            resume_state(c, scene, rest, &mut system, &mut stepper)?;
+            (c.positions.clone(), c.velocities.clone())
+        }
+        None => (rest.positions().to_vec(), vec![Vector3::zeros(); n]),
+    };
+    match &mut stepper {
+        Stepper::Implicit(s) => s.set_time(&mut system, t_start),
+        Stepper::Explicit(s) => s.set_time(&mut system, t_start),
+    }
+    .map_err(|e| format!("frame {first_frame}: {e}"))?;
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
-    let mut watch = ContactWatch::start(scene, &obstacles, rest, names, warn.as_deref_mut());
+    let mut watch = ContactWatch::start(
+        scene,
+        &obstacles,
+        rest,
+        (&x, t_start),
+        names,
+        warn.as_deref_mut(),
+    );
+    let save = |frame: usize,
+                x: &[Vector3<f64>],
+                v: &[Vector3<f64>],
+                stepper: &Stepper,
+                system: &System|
+     -> Result<(), String> {
+        let Some(path) = checkpoint else {
+            return Ok(());
+        };
+        Checkpoint {
+            scene: scene.name.clone(),
+            frame,
+            time: origin + frame as f64 * scene.dt,
+            dt: scene.dt,
+            shift_memory: match stepper {
+                Stepper::Implicit(s) => s.newton().shift_memory(),
+                Stepper::Explicit(_) => 0.0,
+            },
+            positions: x.to_vec(),
+            velocities: v.to_vec(),
+            plastic: system
+                .plastic_state()
+                .map(|(t, a)| (t.to_vec(), a.to_vec())),
+        }
+        .write(path)
+    };
     let mut summary = RunSummary {
-        frames: scene.frames,
+        frames: scene.frames.saturating_sub(first_frame),
         newton_iterations: 0,
         line_search_steps: 0,
         bending_seconds: 0.0,
@@ -1435,9 +1573,9 @@ pub fn simulate_observed(
     let mut sample_times: Vec<f64> = Vec::new();
     let mut write_frame = |k: usize, x: &[Vector3<f64>], last: bool| -> Result<(), String> {
         let Some(o) = out else { return Ok(()) };
-        if o.pictures && (k.is_multiple_of(every) || last) {
+        if o.pictures && ((k - first_frame).is_multiple_of(every) || last) {
             samples.push(x.to_vec());
-            sample_times.push(k as f64 * scene.dt);
+            sample_times.push(origin + k as f64 * scene.dt);
         }
         let name = format!("frame_{k:04}.{}", o.format.extension());
         write_mesh(o.dir.join(name), x, rest.triangles()).map_err(|e| e.to_string())
@@ -1454,14 +1592,14 @@ pub fn simulate_observed(
         let path = o.dir.join(format!("rest_angles_{k:04}.txt"));
         std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))
     };
-    write_frame(0, &x, false)?;
-    write_rest_angles(0, &system)?;
+    write_frame(first_frame, &x, first_frame >= scene.frames)?;
+    write_rest_angles(first_frame, &system)?;
     let policy = SubstepPolicy {
         max_halvings: scene.solver.max_substep_halvings,
     };
-    for frame in 0..scene.frames {
+    for frame in first_frame..scene.frames {
         let t = Instant::now();
-        let t0 = frame as f64 * scene.dt;
+        let t0 = origin + frame as f64 * scene.dt;
         // Released groups leave the pins at the first frame that starts at or after their release time.
         let now = active_at(t0);
         if now != active {
@@ -1496,24 +1634,31 @@ pub fn simulate_observed(
             Err(SolverError::Interrupted { stats }) => {
                 summary.add_work(&stats);
                 summary.add_timings(&mut system);
-                summary.frames = frame;
+                summary.frames = frame - first_frame;
                 summary.interrupted = true;
-                if !frame.is_multiple_of(every) {
+                if !(frame - first_frame).is_multiple_of(every) {
                     // The animation ends on the last frame done (rewritten: the same positions).
                     write_frame(frame, &x, true)?;
                 }
                 break;
             }
             Err(e) => {
+                // The state is the last good frame's: a checkpoint to resume from.
+                let saved = match save(frame, &x, &v, &stepper, &system) {
+                    Ok(()) => checkpoint.map_or(String::new(), |p| {
+                        format!("; frame {frame} is in {} for --resume", p.display())
+                    }),
+                    Err(e) => format!("; no checkpoint: {e}"),
+                };
                 let message = match stepper {
                     Stepper::Implicit(_) => format!(
-                        "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed)",
+                        "frame {}: {} (also in substeps down to dt/{}; {frame} frames completed{saved})",
                         frame + 1,
                         solver_message(&e, names),
                         1u64 << policy.max_halvings.min(30)
                     ),
                     Stepper::Explicit(_) => format!(
-                        "frame {}: {} ({frame} frames completed; written up to frame_{frame:04})",
+                        "frame {}: {} ({frame} frames completed; written up to frame_{frame:04}{saved})",
                         frame + 1,
                         solver_message(&e, names)
                     ),
@@ -1555,11 +1700,14 @@ pub fn simulate_observed(
         );
         progress(frame, &fs, t.elapsed().as_secs_f64(), &x);
         if interrupted {
-            summary.frames = frame + 1;
+            summary.frames = frame + 1 - first_frame;
             summary.interrupted = true;
             break;
         }
     }
+    // The last frame done (all of them, or where Ctrl-C stopped the run): `x`, `v` and the system are its.
+    let last_frame = first_frame + summary.frames;
+    save(last_frame, &x, &v, &stepper, &system)?;
     if let Some(o) = out.filter(|o| o.pictures) {
         write_pictures(
             o.dir,
@@ -1570,7 +1718,7 @@ pub fn simulate_observed(
             scene.dt * every as f64,
         )?;
     }
-    let end_time = summary.frames as f64 * scene.dt;
+    let end_time = origin + last_frame as f64 * scene.dt;
     if let Some(o) = out
         && obstacles.iter().any(|(_, m)| m.is_some())
     {
@@ -1580,9 +1728,9 @@ pub fn simulate_observed(
         } else {
             &samples
         });
-        for k in 0..=summary.frames {
+        for k in first_frame..=last_frame {
             let meshes = crate::view::obstacle_meshes(
-                &obstacles_at(&obstacles, k as f64 * scene.dt),
+                &obstacles_at(&obstacles, origin + k as f64 * scene.dt),
                 scene_box,
             )?;
             crate::view::write_obstacles(&o.dir.join(format!("obstacles_{k:04}.obj")), &meshes)?;
@@ -1708,6 +1856,16 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     if let Some(r) = args.resolution {
         scene.set_resolution(r)?;
     }
+    let resume = match &args.resume {
+        Some(_) if args.statics => {
+            return Err(
+                "--resume continues a time-stepped run; a static solve (--static) starts from rest"
+                    .into(),
+            );
+        }
+        Some(path) => Some(Checkpoint::read(path).map_err(|e| format!("--resume: {e}"))?),
+        None => None,
+    };
     let (rest, names) = scene.rest_mesh_numbered(base.as_deref())?;
     let names = names.as_ref();
     let format = args.format.mesh_format();
@@ -1745,13 +1903,16 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         .num_threads(threads)
         .build()
         .map_err(|e| e.to_string())?;
-    let what = if args.statics {
+    let mut what = if args.statics {
         "static equilibrium (Newton on the potential energy)".to_string()
     } else if (1e-3..1e5).contains(&scene.dt) {
         format!("{} frames of {:.4} s", scene.frames, scene.dt)
     } else {
         format!("{} frames of {} s", scene.frames, Num(scene.dt))
     };
+    if let Some(c) = &resume {
+        what.push_str(&format!(", resumed after frame {}", c.frame));
+    }
     println!(
         "hinge run {}: {} vertices, {} triangles, {what}, {threads} threads → {}",
         scene.name,
@@ -1765,6 +1926,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         pictures: true,
     });
     let frames = scene.frames;
+    let checkpoint = out.join("checkpoint.txt");
     let summary = if args.statics {
         // A static solve of a large soft shell takes minutes: a line every few seconds shows it moving.
         let progress = if args.trace {
@@ -1784,7 +1946,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                     stop: Some(&*INTERRUPTED),
                     names,
                     observer: Some(progress),
-                    warn: None,
+                    ..Hooks::default()
                 },
             )
         })?
@@ -1799,6 +1961,8 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                     names,
                     observer: args.trace.then(|| tracer(names.cloned())),
                     warn: None,
+                    checkpoint: Some(&checkpoint),
+                    resume: resume.as_ref(),
                 },
                 |frame, fs, seconds, _| {
                     println!(
@@ -1818,6 +1982,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     let json = serde_json::json!({
         "scene": scene.name,
         "frames": summary.frames,
+        "resumed_after_frame": resume.as_ref().map(|c| c.frame),
         "n_vertices": summary.n_vertices,
         "newton_iterations": summary.newton_iterations,
         "line_search_steps": summary.line_search_steps,

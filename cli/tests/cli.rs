@@ -142,8 +142,9 @@ fn drape_rests_on_the_sphere() {
     assert!((centre.z - 0.255).abs() < 3e-3, "centre at {centre}");
     assert!(x[0].z < 0.0, "corner at {}", x[0]);
     // Every frame was written (the rest state as frame 0), with the summary, the animation, the last
-    // picture and the obstacles; bad arguments are one-line errors.
-    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 65);
+    // picture, the obstacles and the checkpoint; bad arguments are one-line errors.
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 66);
+    assert!(dir.join("checkpoint.txt").exists());
     // The animation: every 2nd of the 61 frames (at most 60 pictures), 400 × 300; at the end the cloth
     // covers the sphere it hangs over: less than half of the sphere's pixels of the first picture (where the
     // flat cloth above it hides part of it) remain visible, and the cloth has four times as many.
@@ -2032,6 +2033,33 @@ fn thread_and_frame_limits_and_interrupts() {
         rest.iter()
             .any(|l| l.starts_with(&format!("done: interrupted after {frames} of 5000 frames"))),
         "{rest:?}"
+    );
+    // The stopped run's checkpoint is its last frame, and continues it as if it had not stopped.
+    let checkpoint = out.join("checkpoint.txt");
+    let stopped = hinge_cli::checkpoint::Checkpoint::read(&checkpoint).unwrap();
+    assert_eq!(stopped.frame as u64, frames);
+    let more = (frames + 2).to_string();
+    let straight = dir.join("straight");
+    for (args, dir) in [
+        (vec!["--resume", checkpoint.to_str().unwrap()], &out),
+        (vec![], &straight),
+    ] {
+        let mut all = vec![
+            "run",
+            "drape",
+            "--frames",
+            &more,
+            "--resolution",
+            "10",
+            "--no-frames",
+        ];
+        all.extend_from_slice(&args);
+        all.extend_from_slice(&["--out", dir.to_str().unwrap()]);
+        assert!(hinge(&all).status.success(), "{all:?}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(&checkpoint).unwrap(),
+        std::fs::read_to_string(straight.join("checkpoint.txt")).unwrap()
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -4590,5 +4618,297 @@ fn a_mesh_that_starts_inside_an_obstacle_is_warned_of() {
         err.starts_with("hinge: initial state: ") && err.contains("inside the obstacle"),
         "{err}"
     );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// The positions of an OBJ frame file, as written (shortest round-trip digits: exact).
+fn obj_positions(path: &Path) -> Vec<[f64; 3]> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
+            [v[0], v[1], v[2]]
+        })
+        .collect()
+}
+
+#[test]
+fn a_run_resumes_from_its_checkpoint_bitwise() {
+    use hinge_cli::checkpoint::Checkpoint;
+    let dir = tmp("resume");
+    let read = |out: &Path| Checkpoint::read(&out.join("checkpoint.txt")).unwrap();
+    let run = |args: &[&str], out: &Path| -> String {
+        let mut all = vec!["run"];
+        all.extend_from_slice(args);
+        all.extend_from_slice(&["--out", out.to_str().unwrap()]);
+        let o = hinge(&all);
+        assert!(
+            o.status.success(),
+            "{all:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    // Each scene run straight through, and stopped half-way then resumed: the resumed run's frames,
+    // rest angles and final checkpoint are bitwise the straight run's. The drape (its hardest frames, the
+    // arrival on the sphere, lie in the resumed half), the crease (plasticity with hardening, a pin group
+    // turning then released), the drape under a sphere moving by keyframes, a damped beam, and beam1 by
+    // the explicit integrator.
+    let keyframes = dir.join("moving.toml");
+    std::fs::write(
+        &keyframes,
+        String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).replace(
+            "margin = 0.005\n",
+            "margin = 0.005\nmotion = { kind = \"keyframes\", times = [0.1, 0.3], offsets = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]] }\n",
+        ),
+    )
+    .unwrap();
+    let explicit = dir.join("explicit.toml");
+    std::fs::write(
+        &explicit,
+        String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
+            .replace("drag = 5.0", "drag = 0.0")
+            .replace("damping = 9.53907e-07", "damping = 0.0")
+            .replace(
+                "[solver]",
+                "[solver]\nintegrator = \"symplectic-euler\"\nsubsteps = 1000",
+            ),
+    )
+    .unwrap();
+    let cases: [(&str, &[&str], usize, usize); 5] = [
+        ("drape", &["--resolution", "12"], 24, 9),
+        ("crease", &["--resolution", "20"], 40, 27),
+        (keyframes.to_str().unwrap(), &["--resolution", "10"], 24, 11),
+        ("beam2", &[], 12, 5),
+        (explicit.to_str().unwrap(), &[], 4, 2),
+    ];
+    for (scene, extra, frames, stop) in cases {
+        let (straight, resumed) = (dir.join("straight"), dir.join("resumed"));
+        let (all, half) = (frames.to_string(), stop.to_string());
+        let with = |frames: &'static str| {
+            let mut a = vec![scene];
+            a.extend_from_slice(extra);
+            a.extend_from_slice(&["--frames", frames]);
+            a
+        };
+        let (all, half): (&'static str, &'static str) = (all.leak(), half.leak());
+        run(&with(all), &straight);
+        run(&with(half), &resumed);
+        let half = read(&resumed);
+        assert_eq!(half.frame, stop, "{scene}");
+        assert_eq!(
+            obj_positions(&resumed.join(format!("frame_{stop:04}.obj"))),
+            half.positions
+                .iter()
+                .map(|p| [p.x, p.y, p.z])
+                .collect::<Vec<_>>(),
+            "{scene}: the checkpoint holds the last frame's positions"
+        );
+        let checkpoint = resumed.join("checkpoint.txt");
+        let mut args = with(all);
+        args.extend_from_slice(&["--resume", checkpoint.to_str().unwrap()]);
+        let stdout = run(&args, &resumed);
+        assert!(
+            stdout.contains(&format!("resumed after frame {stop}")),
+            "{stdout}"
+        );
+        assert!(stdout.contains(&format!("frame {:>4}/{frames}: ", stop + 1)));
+        assert!(!stdout.contains(&format!("frame {stop:>4}/{frames}: ")));
+        assert!(
+            read(&resumed) == read(&straight),
+            "{scene}: the final checkpoints differ"
+        );
+        for k in stop..=frames {
+            let name = format!("frame_{k:04}.obj");
+            assert_eq!(
+                std::fs::read(resumed.join(&name)).unwrap(),
+                std::fs::read(straight.join(&name)).unwrap(),
+                "{scene}: {name}"
+            );
+            let angles = format!("rest_angles_{k:04}.txt");
+            assert_eq!(
+                std::fs::read(resumed.join(&angles)).ok(),
+                std::fs::read(straight.join(&angles)).ok(),
+                "{scene}: {angles}"
+            );
+        }
+        let json = |d: &Path| -> serde_json::Value {
+            serde_json::from_str(&std::fs::read_to_string(d.join("summary.json")).unwrap()).unwrap()
+        };
+        let (a, b) = (json(&straight), json(&resumed));
+        assert_eq!(b["frames"], frames - stop);
+        assert_eq!(b["resumed_after_frame"], stop);
+        assert_eq!(a["resumed_after_frame"], serde_json::Value::Null);
+        let tail: Vec<_> = a["frame_newton_iterations"].as_array().unwrap()[stop..].to_vec();
+        assert_eq!(b["frame_newton_iterations"].as_array().unwrap(), &tail);
+        std::fs::remove_dir_all(&straight).unwrap();
+        std::fs::remove_dir_all(&resumed).unwrap();
+    }
+    // The crease's checkpoint carries its plastic state: rest angles moved, plastic angles accumulated.
+    run(
+        &["crease", "--resolution", "20", "--frames", "27"],
+        &dir.join("c"),
+    );
+    let c = read(&dir.join("c"));
+    let (theta_bar, alpha) = c.plastic.as_ref().unwrap();
+    assert!(theta_bar.iter().any(|t| t.abs() > 0.05) && alpha.iter().any(|a| *a > 0.05));
+    assert!(c.shift_memory >= 0.0);
+
+    // A run that fails writes its last good frame as the checkpoint and says so; the scene made
+    // convergeable again (more Newton iterations) resumes from it and runs to the end.
+    let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
+    let hopeless = dir.join("hopeless.toml");
+    std::fs::write(
+        &hopeless,
+        text.replace("max_iterations = 300", "max_iterations = 1")
+            .replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\nmax_substep_halvings = 1",
+            ),
+    )
+    .unwrap();
+    let out = dir.join("failed");
+    let o = hinge(&[
+        "run",
+        hopeless.to_str().unwrap(),
+        "--frames",
+        "40",
+        "--resolution",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let failed: usize = err
+        .split("frame ")
+        .nth(1)
+        .and_then(|t| t.split(':').next())
+        .and_then(|k| k.parse().ok())
+        .unwrap_or_else(|| panic!("no frame number in {err}"));
+    let checkpoint = out.join("checkpoint.txt");
+    assert!(
+        err.contains(&format!(
+            "; frame {} is in {} for --resume",
+            failed - 1,
+            checkpoint.display()
+        )),
+        "{err}"
+    );
+    let last_good = read(&out);
+    assert_eq!(last_good.frame, failed - 1);
+    assert_eq!(
+        obj_positions(&out.join(format!("frame_{:04}.obj", failed - 1))),
+        last_good
+            .positions
+            .iter()
+            .map(|p| [p.x, p.y, p.z])
+            .collect::<Vec<_>>()
+    );
+    let stdout = run(
+        &[
+            "drape",
+            "--frames",
+            "40",
+            "--resolution",
+            "10",
+            "--no-frames",
+            "--resume",
+            checkpoint.to_str().unwrap(),
+        ],
+        &out,
+    );
+    assert!(stdout.contains("frame   40/40: "), "{stdout}");
+    assert_eq!(read(&out).frame, 40);
+
+    // Another dt: the frames after the checkpoint take the new one, the time runs on from the
+    // checkpoint's.
+    let halved = dir.join("halved.toml");
+    std::fs::write(
+        &halved,
+        text.replace("dt = 0.016666666666666666", "dt = 0.008333333333333333"),
+    )
+    .unwrap();
+    run(
+        &["drape", "--resolution", "8", "--frames", "6", "--no-frames"],
+        &dir.join("dt"),
+    );
+    let at6 = read(&dir.join("dt"));
+    run(
+        &[
+            halved.to_str().unwrap(),
+            "--resolution",
+            "8",
+            "--frames",
+            "10",
+            "--no-frames",
+            "--resume",
+            dir.join("dt/checkpoint.txt").to_str().unwrap(),
+        ],
+        &dir.join("dt2"),
+    );
+    let at10 = read(&dir.join("dt2"));
+    assert_eq!((at10.frame, at10.dt), (10, 0.008333333333333333));
+    assert!((at10.time - (at6.time + 4.0 * 0.008333333333333333)).abs() < 1e-15);
+    assert!((at6.time - 0.1).abs() < 1e-15);
+
+    // Checkpoints that do not fit the scene, or are damaged, and --static: one line each.
+    let good = dir.join("dt/checkpoint.txt");
+    let good = good.to_str().unwrap();
+    let elastic = dir.join("elastic-crease.toml");
+    let crease = String::from_utf8_lossy(&hinge(&["scenes", "show", "crease"]).stdout).to_string();
+    let plasticity = "[bending.plasticity]\nyield_angle = 0.02      # rad\nhardening = 0.5\n";
+    assert!(crease.contains(plasticity));
+    std::fs::write(&elastic, crease.replace(plasticity, "")).unwrap();
+    let plastic = dir.join("c/checkpoint.txt");
+    let damaged = dir.join("damaged.txt");
+    let lines: Vec<String> = std::fs::read_to_string(good)
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    let mut broken = lines.clone();
+    broken[10] = "1 2 3 4 5".into();
+    std::fs::write(&damaged, broken.join("\n")).unwrap();
+    for (args, needle) in [
+        (
+            vec!["drape", "--resolution", "9", "--resume", good],
+            "--resume: the checkpoint has 81 vertices, the scene's mesh 100".to_string(),
+        ),
+        (
+            vec!["drape", "--resolution", "8", "--frames", "6", "--resume", good],
+            "the checkpoint is at frame 6 and the scene has 6 frames: nothing to run".into(),
+        ),
+        (
+            vec!["drape", "--resolution", "8", "--static", "--resume", good],
+            "--resume continues a time-stepped run".into(),
+        ),
+        (
+            vec![elastic.to_str().unwrap(), "--resolution", "20", "--resume", plastic.to_str().unwrap()],
+            "--resume: the checkpoint has a plastic state but the scene has no [bending.plasticity]"
+                .into(),
+        ),
+        (
+            vec!["drape", "--resolution", "8", "--resume", damaged.to_str().unwrap()],
+            format!(
+                "--resume: {}: line 11 (vertex 2): expected 6 numbers, found 5",
+                damaged.display()
+            ),
+        ),
+        (
+            vec!["drape", "--resume", dir.join("none.txt").to_str().unwrap()],
+            "--resume: ".into(),
+        ),
+    ] {
+        let mut all = vec!["run"];
+        all.extend_from_slice(&args);
+        let bad = dir.join("bad");
+        all.extend_from_slice(&["--out", bad.to_str().unwrap(), "--no-frames"]);
+        let err = one_line_failure(&all);
+        assert!(err.contains(&needle), "{args:?}: {err}");
+    }
     std::fs::remove_dir_all(dir).unwrap();
 }

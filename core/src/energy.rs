@@ -247,6 +247,30 @@ pub trait Energy: Send + Sync {
         None
     }
 
+    /// The whole plastic state of an energy with plasticity, as a checkpoint must hold it to continue a run
+    /// exactly: the rest angles θ̄ and the accumulated plastic angles α (both in hinge order). `None` for
+    /// every other energy.
+    fn plastic_state(&self) -> Option<(&[f64], &[f64])> {
+        None
+    }
+
+    /// Sets the state [`Energy::plastic_state`] returns (a run resumed from a checkpoint).
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] for an energy without plasticity (the default); the implementation's errors
+    /// for a wrong length or a value out of range. On error nothing changes.
+    fn set_plastic_state(
+        &mut self,
+        theta_bar: &[f64],
+        accumulated: &[f64],
+    ) -> Result<(), EvalError> {
+        let _ = (theta_bar, accumulated);
+        Err(EvalError::Element {
+            element: self.name().to_string(),
+            message: "has no plastic state to set".into(),
+        })
+    }
+
     /// The parameters this energy can be differentiated with respect to (fitting, sensitivities). Default:
     /// none.
     fn parameters(&self) -> Vec<Parameter> {
@@ -556,6 +580,54 @@ where
 
     fn evolving_rest_angles(&self) -> Option<&[f64]> {
         self.plastic.as_ref().map(|p| p.theta_bar.as_slice())
+    }
+
+    fn plastic_state(&self) -> Option<(&[f64], &[f64])> {
+        self.plastic
+            .as_ref()
+            .map(|p| (p.theta_bar.as_slice(), p.accumulated.as_slice()))
+    }
+
+    fn set_plastic_state(
+        &mut self,
+        theta_bar: &[f64],
+        accumulated: &[f64],
+    ) -> Result<(), EvalError> {
+        let Some(state) = self.plastic.as_mut() else {
+            return Err(EvalError::Element {
+                element: self.name().to_string(),
+                message: "has no plasticity, so no plastic state to set".into(),
+            });
+        };
+        if accumulated.len() != state.accumulated.len() {
+            return Err(EvalError::Psi(crate::psi::PsiError {
+                name: "accumulated plastic angle".into(),
+                message: format!(
+                    "has {} values but the mesh has {} hinges",
+                    accumulated.len(),
+                    state.accumulated.len()
+                ),
+            }));
+        }
+        if let Some(i) = accumulated
+            .iter()
+            .position(|a| !(*a >= 0.0 && a.is_finite()))
+        {
+            return Err(EvalError::Psi(crate::psi::PsiError {
+                name: "accumulated plastic angle".into(),
+                message: format!(
+                    "value of hinge {i} must be non-negative and finite, got {}",
+                    crate::error::Num(accumulated[i])
+                ),
+            }));
+        }
+        // Checks θ̄ (length, range) and sets it, or changes nothing.
+        self.model.set_rest_angles(theta_bar)?;
+        state.theta_bar.clear();
+        state.theta_bar.extend_from_slice(theta_bar);
+        state.accumulated.copy_from_slice(accumulated);
+        state.mark = None;
+        Ok(())
     }
 
     /// The ψ's parameters ([`HingePsi::parameters`]; 1 value, or one per hinge) and the rest angles
@@ -908,6 +980,31 @@ impl System {
     /// The evolving rest angles of the first term that has them (see [`Energy::evolving_rest_angles`]).
     pub fn evolving_rest_angles(&self) -> Option<&[f64]> {
         self.terms.iter().find_map(|t| t.evolving_rest_angles())
+    }
+
+    /// The plastic state (rest angles, accumulated plastic angles) of the first term that has plasticity
+    /// (see [`Energy::plastic_state`]).
+    pub fn plastic_state(&self) -> Option<(&[f64], &[f64])> {
+        self.terms.iter().find_map(|t| t.plastic_state())
+    }
+
+    /// Sets the plastic state of the first term that has plasticity (see [`Energy::set_plastic_state`]).
+    ///
+    /// # Errors
+    /// [`EvalError::Element`] when no term has plasticity; the term's error for a state it refuses (then
+    /// nothing changes).
+    pub fn set_plastic_state(
+        &mut self,
+        theta_bar: &[f64],
+        accumulated: &[f64],
+    ) -> Result<(), EvalError> {
+        match self.terms.iter_mut().find(|t| t.plastic_state().is_some()) {
+            Some(t) => t.set_plastic_state(theta_bar, accumulated),
+            None => Err(EvalError::Element {
+                element: "system".into(),
+                message: "no energy has plasticity, so there is no plastic state to set".into(),
+            }),
+        }
     }
 
     /// The largest accumulated plastic angle over the terms with plasticity (`None` if none has it).

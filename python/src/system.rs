@@ -982,6 +982,7 @@ pub fn run_scene<'py>(
                 warn: Some(Box::new(|line: &str| {
                     warnings.push(format!("{line} (vertices from 0)"));
                 })),
+                ..Default::default()
             },
             |k, _, _, x| {
                 xs.push(x.to_vec());

@@ -720,9 +720,26 @@ impl Newton {
         self.solver.as_ref()
     }
 
-    /// The shift memory ([`NewtonParams::remember_shift`]): the last positive shift the ladder found.
-    pub(crate) fn shift_memory(&self) -> f64 {
+    /// The shift memory ([`NewtonParams::remember_shift`]): the last positive shift the ladder found (0
+    /// before any). It carries from one solve to the next, so a checkpoint that is to continue a run
+    /// exactly holds it ([`Newton::restore_shift_memory`]).
+    pub fn shift_memory(&self) -> f64 {
         self.ladder_hint
+    }
+
+    /// Sets the shift memory to a value [`Newton::shift_memory`] returned (a run resumed from a
+    /// checkpoint: its solves then take the steps the uninterrupted run took).
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] for a negative or non-finite value (nothing changes then).
+    pub fn restore_shift_memory(&mut self, memory: f64) -> Result<(), SolverError> {
+        if !(memory >= 0.0 && memory.is_finite()) {
+            return Err(SolverError::Input(format!(
+                "shift memory must be non-negative and finite, got {memory}"
+            )));
+        }
+        self.ladder_hint = memory;
+        Ok(())
     }
 
     /// Sets the shift memory back (a failed sequence of solves, [`crate::statics::minimize_continued`]).

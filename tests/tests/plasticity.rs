@@ -574,3 +574,97 @@ fn a_frame_that_fails_after_accepted_substeps_leaves_the_plastic_state_as_it_was
         }
     }
 }
+
+/// The plastic state a checkpoint holds (rest angles and accumulated plastic angles) reads back through
+/// `System::plastic_state` and, set on a fresh system, continues the law exactly: a system given another's
+/// state yields the next fold as the other does (the hardened yield included). Bad states are refused by
+/// name with nothing changed; a system without plasticity has no state and refuses one.
+#[test]
+fn the_plastic_state_of_a_checkpoint_continues_the_law_exactly() {
+    let (rest, fold) = one_hinge();
+    let law = Plasticity {
+        yield_angle: 0.1,
+        hardening: 0.5,
+    };
+    let mut a = System::new(4, vec![plastic_hinges(&rest, law)]).unwrap();
+    a.end_step(&fold(0.7)).unwrap();
+    a.end_step(&fold(-0.4)).unwrap();
+    let (theta_bar, alpha) = a
+        .plastic_state()
+        .map(|(t, a)| (t.to_vec(), a.to_vec()))
+        .unwrap();
+    assert!(
+        alpha[0] > 0.3 && theta_bar[0] != 0.0,
+        "{theta_bar:?} {alpha:?}"
+    );
+    let mut b = System::new(4, vec![plastic_hinges(&rest, law)]).unwrap();
+    b.set_plastic_state(&theta_bar, &alpha).unwrap();
+    assert_eq!(b.plastic_state(), a.plastic_state());
+    // The next fold, beyond the hardened yield: both move the same way, bitwise.
+    for s in [&mut a, &mut b] {
+        s.end_step(&fold(1.1)).unwrap();
+    }
+    assert_eq!(b.plastic_state(), a.plastic_state());
+    // With α set back to zero instead, the same fold yields further: the accumulated angle matters.
+    let mut c = System::new(4, vec![plastic_hinges(&rest, law)]).unwrap();
+    c.set_plastic_state(&theta_bar, &[0.0]).unwrap();
+    c.end_step(&fold(1.1)).unwrap();
+    assert!(c.evolving_rest_angles().unwrap()[0] > a.evolving_rest_angles().unwrap()[0]);
+    // Refused, nothing changed.
+    let before = b.plastic_state().map(|(t, a)| (t.to_vec(), a.to_vec()));
+    for (t, al, needle) in [
+        (
+            vec![0.1, 0.2],
+            vec![0.0],
+            "has 2 values but the mesh has 1 hinges",
+        ),
+        (
+            vec![0.1],
+            vec![0.0, 0.0],
+            "has 2 values but the mesh has 1 hinges",
+        ),
+        (
+            vec![0.1],
+            vec![-0.5],
+            "value of hinge 0 must be non-negative and finite",
+        ),
+        (
+            vec![0.1],
+            vec![f64::NAN],
+            "value of hinge 0 must be non-negative and finite",
+        ),
+        (vec![4.0], vec![0.0], "outside"),
+    ] {
+        let e = b.set_plastic_state(&t, &al).unwrap_err().to_string();
+        assert!(e.contains(needle), "{e}");
+        assert_eq!(
+            b.plastic_state().map(|(t, a)| (t.to_vec(), a.to_vec())),
+            before
+        );
+    }
+    let mut elastic = System::new(
+        4,
+        vec![Box::new(HingeTerm::new(
+            "bending",
+            BendingModel::new(&rest, DiscreteShells { k: 1.0 }).unwrap(),
+            Method::Refactored,
+        ))],
+    )
+    .unwrap();
+    assert!(elastic.plastic_state().is_none());
+    let e = elastic
+        .set_plastic_state(&[0.0], &[0.0])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no energy has plasticity"), "{e}");
+    // The shift memory a checkpoint holds: restored as given, refused when negative or not finite.
+    let pins = Pins::new(4, vec![0, 1, 2]).unwrap();
+    let mut newton = Newton::new(&a, &pins, default_solver(), params_tight()).unwrap();
+    assert_eq!(newton.shift_memory(), 0.0);
+    newton.restore_shift_memory(0.1 + 0.2).unwrap();
+    assert_eq!(newton.shift_memory(), 0.1 + 0.2);
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        assert!(newton.restore_shift_memory(bad).is_err());
+        assert_eq!(newton.shift_memory(), 0.1 + 0.2);
+    }
+}

@@ -1,0 +1,346 @@
+//! Checkpoints of a time-stepped run: the state `hinge run` needs to continue it (`--resume FILE`).
+//!
+//! A run with an output directory writes `checkpoint.txt` there when it ends: after its last frame, when
+//! Ctrl-C stops it, and when a frame fails (then the checkpoint holds the last good frame, the state the
+//! failed frame started from). `hinge run SCENE --resume checkpoint.txt` continues from it: with the scene
+//! unchanged, the frames it writes are bitwise those the run would have written had it not stopped
+//! (positions, velocities, the time, the Newton solver's shift memory and the plastic state are all in the
+//! file, the floating-point numbers in a form that reads back exactly). A changed scene is taken as
+//! given — a smaller `dt`, a stiffer contact or more frames after a failure —, as long as the mesh has the
+//! checkpoint's vertices (and hinges, for plasticity).
+//!
+//! The file is text, one item per line:
+//!
+//! ```text
+//! hinge checkpoint 1
+//! scene drape
+//! frame 46
+//! time 7.666666666666667e-1
+//! dt 1.6666666666666666e-2
+//! shift_memory 3.2e-1
+//! vertices 961
+//! plastic_hinges 0
+//! x y z vx vy vz          (one line per vertex)
+//! theta_bar alpha         (one line per hinge, only with plasticity)
+//! ```
+
+use std::path::Path;
+
+use hinge_core::nalgebra::Vector3;
+
+/// The first line of every checkpoint (the format's version).
+const HEADER: &str = "hinge checkpoint 1";
+
+/// The state of a time-stepped run after some frame (see the module documentation).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checkpoint {
+    /// The scene's name (for the reader; not checked on resume).
+    pub scene: String,
+    /// The frame whose end this is (0: the start).
+    pub frame: usize,
+    /// The time of that frame's end (s).
+    pub time: f64,
+    /// The time step the frames were taken with (s).
+    pub dt: f64,
+    /// The Newton solver's shift memory ([`hinge_solver::newton::Newton::shift_memory`]; 0 for the
+    /// explicit integrator).
+    pub shift_memory: f64,
+    /// Positions (m).
+    pub positions: Vec<Vector3<f64>>,
+    /// Velocities (m/s).
+    pub velocities: Vec<Vector3<f64>>,
+    /// With bending plasticity: the rest angles θ̄ and accumulated plastic angles α (rad, hinge order).
+    pub plastic: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+impl Checkpoint {
+    /// The file's text (numbers in Rust's shortest round-trip form: they read back exactly).
+    pub fn to_text(&self) -> String {
+        let mut s = String::with_capacity(160 + 150 * self.positions.len());
+        s.push_str(HEADER);
+        s.push('\n');
+        s.push_str(&format!(
+            "scene {}\n",
+            self.scene.replace(['\n', '\r'], " ")
+        ));
+        s.push_str(&format!("frame {}\n", self.frame));
+        s.push_str(&format!("time {:e}\n", self.time));
+        s.push_str(&format!("dt {:e}\n", self.dt));
+        s.push_str(&format!("shift_memory {:e}\n", self.shift_memory));
+        s.push_str(&format!("vertices {}\n", self.positions.len()));
+        let plastic = self.plastic.as_ref().map_or(0, |(t, _)| t.len());
+        s.push_str(&format!("plastic_hinges {plastic}\n"));
+        for (x, v) in self.positions.iter().zip(&self.velocities) {
+            s.push_str(&format!(
+                "{:e} {:e} {:e} {:e} {:e} {:e}\n",
+                x.x, x.y, x.z, v.x, v.y, v.z
+            ));
+        }
+        if let Some((theta_bar, alpha)) = &self.plastic {
+            for (t, a) in theta_bar.iter().zip(alpha) {
+                s.push_str(&format!("{t:e} {a:e}\n"));
+            }
+        }
+        s
+    }
+
+    /// Writes the file (to a temporary file beside it, then renamed: a run stopped while writing leaves
+    /// the previous checkpoint or none, never half of one).
+    ///
+    /// # Errors
+    /// A one-line message naming the file.
+    pub fn write(&self, path: &Path) -> Result<(), String> {
+        let tmp = path.with_extension("txt.partial");
+        std::fs::write(&tmp, self.to_text()).map_err(|e| format!("{}: {e}", tmp.display()))?;
+        std::fs::rename(&tmp, path).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// Reads a checkpoint file.
+    ///
+    /// # Errors
+    /// A one-line message naming the file and the line at fault.
+    pub fn read(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        Self::parse(&text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// Parses a checkpoint's text.
+    ///
+    /// # Errors
+    /// A one-line message naming the line at fault (counted from 1): a missing or unknown header, a
+    /// missing item, a number that does not parse or is not finite, a negative shift memory or
+    /// accumulated plastic angle, a non-positive `dt`, missing or extra lines.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim()));
+        let mut next = |what: &str| -> Result<(usize, &str), String> {
+            lines.next().ok_or_else(|| format!("ends before {what}"))
+        };
+        let (n, header) = next("its header")?;
+        if header != HEADER {
+            return Err(format!(
+                "line {n}: not a hinge checkpoint (expected `{HEADER}`, found `{}`)",
+                shorten(header)
+            ));
+        }
+        let mut item = |key: &str| -> Result<(usize, String), String> {
+            let (n, line) = next(&format!("`{key}`"))?;
+            match line.split_once(' ') {
+                Some((k, value)) if k == key => Ok((n, value.trim().to_string())),
+                _ if line == key => Ok((n, String::new())),
+                _ => Err(format!(
+                    "line {n}: expected `{key} …`, found `{}`",
+                    shorten(line)
+                )),
+            }
+        };
+        let (_, scene) = item("scene")?;
+        let count = |(n, value): (usize, String), key: &str| -> Result<usize, String> {
+            value
+                .parse::<usize>()
+                .map_err(|_| format!("line {n}: {key} `{}` is not a count", shorten(&value)))
+        };
+        let number = |(n, value): (usize, String), key: &str| -> Result<f64, String> {
+            let x = parse_number(&value).map_err(|m| format!("line {n}: {key} {m}"))?;
+            Ok(x)
+        };
+        let frame = count(item("frame")?, "frame")?;
+        let time = number(item("time")?, "time")?;
+        let (n_dt, dt_text) = item("dt")?;
+        let dt = number((n_dt, dt_text), "dt")?;
+        if dt <= 0.0 {
+            return Err(format!("line {n_dt}: dt must be positive, got {dt:e}"));
+        }
+        let (n_shift, shift_text) = item("shift_memory")?;
+        let shift_memory = number((n_shift, shift_text), "shift_memory")?;
+        if shift_memory < 0.0 {
+            return Err(format!(
+                "line {n_shift}: shift_memory must be non-negative, got {shift_memory:e}"
+            ));
+        }
+        let vertices = count(item("vertices")?, "vertices")?;
+        let hinges = count(item("plastic_hinges")?, "plastic_hinges")?;
+        let mut positions = Vec::with_capacity(vertices.min(1 << 24));
+        let mut velocities = Vec::with_capacity(vertices.min(1 << 24));
+        for vertex in 0..vertices {
+            let (n, line) = next(&format!("vertex {vertex} (of {vertices})"))?;
+            let values =
+                numbers::<6>(line).map_err(|m| format!("line {n} (vertex {vertex}): {m}"))?;
+            positions.push(Vector3::new(values[0], values[1], values[2]));
+            velocities.push(Vector3::new(values[3], values[4], values[5]));
+        }
+        let plastic = if hinges == 0 {
+            None
+        } else {
+            let mut theta_bar = Vec::with_capacity(hinges.min(1 << 24));
+            let mut alpha = Vec::with_capacity(hinges.min(1 << 24));
+            for hinge in 0..hinges {
+                let (n, line) = next(&format!("hinge {hinge} (of {hinges})"))?;
+                let [t, a] =
+                    numbers::<2>(line).map_err(|m| format!("line {n} (hinge {hinge}): {m}"))?;
+                if a < 0.0 {
+                    return Err(format!(
+                        "line {n} (hinge {hinge}): the accumulated plastic angle must be non-negative, \
+                         got {a:e}"
+                    ));
+                }
+                theta_bar.push(t);
+                alpha.push(a);
+            }
+            Some((theta_bar, alpha))
+        };
+        if let Some((n, line)) = lines.find(|(_, l)| !l.is_empty()) {
+            return Err(format!(
+                "line {n}: more lines than its {vertices} vertices and {hinges} plastic hinges (`{}`)",
+                shorten(line)
+            ));
+        }
+        Ok(Checkpoint {
+            scene,
+            frame,
+            time,
+            dt,
+            shift_memory,
+            positions,
+            velocities,
+            plastic,
+        })
+    }
+}
+
+/// A finite number, or what is wrong with it.
+fn parse_number(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        Ok(x) => Err(format!("is not finite ({x})")),
+        Err(_) => Err(format!("`{}` is not a number", shorten(s))),
+    }
+}
+
+/// Exactly `N` finite numbers separated by white space.
+fn numbers<const N: usize>(line: &str) -> Result<[f64; N], String> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    if words.len() != N {
+        return Err(format!("expected {N} numbers, found {}", words.len()));
+    }
+    let mut out = [0.0; N];
+    for (k, (o, w)) in out.iter_mut().zip(&words).enumerate() {
+        *o = parse_number(w).map_err(|m| format!("number {} {m}", k + 1))?;
+    }
+    Ok(out)
+}
+
+/// At most 40 characters of `s`, for messages.
+fn shorten(s: &str) -> String {
+    match s.char_indices().nth(40) {
+        Some((i, _)) => format!("{}…", &s[..i]),
+        None => s.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(plastic: bool) -> Checkpoint {
+        // Numbers whose shortest forms are long, tiny, huge, negative zero and subnormal.
+        Checkpoint {
+            scene: "drape".into(),
+            frame: 46,
+            time: 46.0 * (1.0 / 60.0),
+            dt: 1.0 / 60.0,
+            shift_memory: 0.1 + 0.2,
+            positions: vec![
+                Vector3::new(0.1, -2.0 / 3.0, 1e-300),
+                Vector3::new(-0.0, 5e-324, 1.7976931348623157e308),
+            ],
+            velocities: vec![
+                Vector3::new(std::f64::consts::PI, -1e-17, 0.0),
+                Vector3::new(2.0f64.sqrt(), -7.0, 1.0 / 3.0),
+            ],
+            plastic: plastic.then(|| (vec![0.25, -3.0], vec![0.0, 1.0 / 7.0])),
+        }
+    }
+
+    #[test]
+    fn checkpoints_read_back_bitwise() {
+        for plastic in [false, true] {
+            let c = sample(plastic);
+            let back = Checkpoint::parse(&c.to_text()).unwrap();
+            assert_eq!(back, c);
+            let bits = |v: &[Vector3<f64>]| -> Vec<u64> {
+                v.iter()
+                    .flat_map(|p| p.iter().map(|x| x.to_bits()))
+                    .collect()
+            };
+            assert_eq!(bits(&back.positions), bits(&c.positions));
+            assert_eq!(bits(&back.velocities), bits(&c.velocities));
+            assert_eq!(back.time.to_bits(), c.time.to_bits());
+            assert_eq!(back.shift_memory.to_bits(), c.shift_memory.to_bits());
+        }
+    }
+
+    #[test]
+    fn bad_checkpoints_name_their_line() {
+        let good = sample(true).to_text();
+        let replace_line = |k: usize, with: &str| -> String {
+            good.lines()
+                .enumerate()
+                .map(|(i, l)| if i + 1 == k { with } else { l })
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        let cases: Vec<(String, &str)> = vec![
+            (String::new(), "ends before its header"),
+            ("hinge frames 1\n".into(), "line 1: not a hinge checkpoint"),
+            (
+                replace_line(3, "frame -1"),
+                "line 3: frame `-1` is not a count",
+            ),
+            (
+                replace_line(4, "time nan"),
+                "line 4: time is not finite (NaN)",
+            ),
+            (replace_line(5, "dt 0"), "line 5: dt must be positive"),
+            (
+                replace_line(6, "shift_memory -1"),
+                "line 6: shift_memory must be non-negative",
+            ),
+            (
+                replace_line(6, "shift 1"),
+                "line 6: expected `shift_memory …`, found `shift 1`",
+            ),
+            (
+                replace_line(9, "1 2 3 4 5"),
+                "line 9 (vertex 0): expected 6 numbers, found 5",
+            ),
+            (
+                replace_line(10, "1 2 3 4 inf 6"),
+                "line 10 (vertex 1): number 5 is not finite (inf)",
+            ),
+            (
+                replace_line(11, "0.1 x"),
+                "line 11 (hinge 0): number 2 `x` is not a number",
+            ),
+            (
+                replace_line(12, "0.1 -0.5"),
+                "line 12 (hinge 1): the accumulated plastic angle",
+            ),
+            (
+                good.lines().take(11).collect::<Vec<_>>().join("\n"),
+                "ends before hinge 1 (of 2)",
+            ),
+            (
+                format!("{good}1 2\n"),
+                "line 13: more lines than its 2 vertices and 2 plastic",
+            ),
+        ];
+        for (text, expected) in cases {
+            let e = Checkpoint::parse(&text).unwrap_err();
+            assert!(
+                e.starts_with(expected),
+                "{e:?} does not start with {expected:?}"
+            );
+            assert!(!e.contains('\n'), "{e:?}");
+        }
+    }
+}
