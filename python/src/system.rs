@@ -902,10 +902,14 @@ impl PyStepper {
 /// Frames of a scene: (frames, n, 3) positions.
 type Frames = Vec<Vec<Vector3<f64>>>;
 
-/// `run_scene(scene, frames=None, trace=False)`: simulates a built-in scene (`drape`, `shell-drop`,
-/// `beam1`, …) or a TOML scene file, as `hinge run` does, and returns `(V, F, X, summary)`: the rest mesh,
-/// the positions of every frame as a (frames, n, 3) array, and the run's counts, per frame too
-/// (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`). With `trace`, `summary["trace"]`
+/// `run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None)`: simulates a built-in scene
+/// (`drape`, `shell-drop`, `beam1`, …) or a TOML scene file, as `hinge run` does, and returns
+/// `(V, F, X, summary)`: the rest mesh, the positions of every frame as a (frames, n, 3) array, and the
+/// run's counts, per frame too (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`).
+/// `checkpoint`: a file the run writes its state to when it ends, is interrupted or fails (then the last
+/// good frame's), as `hinge run` writes `checkpoint.txt`; `resume`: such a file to continue from (`X` then
+/// holds the frames after its frame, `summary["resumed_after_frame"]` says which; with the scene unchanged
+/// they are bitwise those of the run that did not stop). With `trace`, `summary["trace"]`
 /// is a (k, 11) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
 /// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift, definite (1 for a step with the
 /// definite Hessian of `globalization = "project-on-demand"`, else 0), accelerated (1 for a step
@@ -914,13 +918,15 @@ type Frames = Vec<Vec<Vector3<f64>>>;
 /// free); the two flags' column sums are the summary's `definite_iterations` and
 /// `accelerated_iterations`.
 #[pyfunction]
-#[pyo3(signature = (scene, frames=None, trace=false))]
+#[pyo3(signature = (scene, frames=None, trace=false, checkpoint=None, resume=None))]
 #[allow(clippy::type_complexity)]
 pub fn run_scene<'py>(
     py: Python<'py>,
     scene: &str,
     frames: Option<usize>,
     trace: bool,
+    checkpoint: Option<std::path::PathBuf>,
+    resume: Option<std::path::PathBuf>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<i64>>,
@@ -934,6 +940,10 @@ pub fn run_scene<'py>(
         }
         sc.frames = f;
     }
+    let resume = resume
+        .map(|p| hinge_cli::checkpoint::Checkpoint::read(&p))
+        .transpose()
+        .map_err(|e| value_error(format!("resume: {e}")))?;
     let rest = sc.rest_mesh(base.as_deref()).map_err(value_error)?;
     let n = rest.n_vertices();
     if sc.frames.saturating_mul(n) > 50_000_000 {
@@ -945,7 +955,9 @@ pub fn run_scene<'py>(
     let mut xs: Frames = Vec::with_capacity(sc.frames);
     // The trace's rows, and the frame the observer's iterations belong to (the frames done so far).
     let rows = std::sync::Arc::new(std::sync::Mutex::new(Vec::<[f64; 11]>::new()));
-    let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let frame = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(
+        resume.as_ref().map_or(0, |c| c.frame),
+    ));
     let observer: Option<hinge_solver::newton::Observer> = trace.then(|| {
         let (rows, frame) = (std::sync::Arc::clone(&rows), std::sync::Arc::clone(&frame));
         Box::new(move |r: &hinge_solver::newton::IterationReport| {
@@ -982,7 +994,8 @@ pub fn run_scene<'py>(
                 warn: Some(Box::new(|line: &str| {
                     warnings.push(format!("{line} (vertices from 0)"));
                 })),
-                ..Default::default()
+                checkpoint: checkpoint.as_deref(),
+                resume: resume.as_ref(),
             },
             |k, _, _, x| {
                 xs.push(x.to_vec());
@@ -1017,6 +1030,7 @@ pub fn run_scene<'py>(
         .collect();
     let d = PyDict::new(py);
     d.set_item("frames", summary.frames)?;
+    d.set_item("resumed_after_frame", resume.as_ref().map(|c| c.frame))?;
     d.set_item("newton_iterations", summary.newton_iterations)?;
     d.set_item("factorizations", summary.factorizations)?;
     d.set_item("line_search_steps", summary.line_search_steps)?;

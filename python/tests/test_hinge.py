@@ -1549,3 +1549,38 @@ def test_solves_say_where_the_residual_is():
     X, stats = hinge.ImplicitEuler(s, V, 0.01, 0.1, gradient_tolerance=1e-9).step()
     v, f = stats["largest_residual"]
     assert v in free and 0 < f <= stats["final_gradient_norm"] <= 1e-9
+
+
+def test_run_scene_resumes_from_its_checkpoint_bitwise(tmp_path):
+    # Straight through 16 frames, and 7 then resumed to 16: the same frames, bit for bit, with the trace
+    # counting frames from the checkpoint's and the per-frame counts the straight run's tail.
+    V, F, X, s = hinge.run_scene("drape", frames=16, checkpoint=tmp_path / "full.txt")
+    _, _, X7, s7 = hinge.run_scene("drape", frames=7, checkpoint=str(tmp_path / "c7.txt"))
+    assert s7["resumed_after_frame"] is None
+    assert np.array_equal(X7, X[:7])
+    _, _, Xr, sr = hinge.run_scene("drape", frames=16, trace=True, resume=tmp_path / "c7.txt",
+                                   checkpoint=tmp_path / "resumed.txt")
+    assert Xr.shape == (9, len(V), 3)
+    assert np.array_equal(Xr, X[7:])
+    assert sr["frames"] == 9 and sr["resumed_after_frame"] == 7
+    assert sr["frame_newton_iterations"] == s["frame_newton_iterations"][7:]
+    assert sr["trace"][0, 0] == 7 and sr["trace"][-1, 0] == 15
+    assert (tmp_path / "resumed.txt").read_text() == (tmp_path / "full.txt").read_text()
+    # The checkpoint's header and positions: frame 7, the last frame's positions exactly.
+    lines = (tmp_path / "c7.txt").read_text().splitlines()
+    assert lines[0] == "hinge checkpoint 1" and lines[2] == "frame 7"
+    first = [float(t) for t in lines[8].split()]
+    assert first[:3] == list(X[6, 0])
+    # Checkpoints that do not fit, damaged ones and bad arguments raise ValueError.
+    with pytest.raises(ValueError, match="the checkpoint has 961 vertices, the scene's mesh"):
+        hinge.run_scene("shell-drop", frames=8, resume=tmp_path / "c7.txt")
+    with pytest.raises(ValueError, match="at frame 16 and the scene has 16 frames"):
+        hinge.run_scene("drape", frames=16, resume=tmp_path / "full.txt")
+    bad = tmp_path / "bad.txt"
+    bad.write_text("\n".join(lines[:8] + ["1 2 3"] + lines[9:]))
+    with pytest.raises(ValueError, match="line 9 \\(vertex 0\\): expected 6 numbers, found 3"):
+        hinge.run_scene("drape", frames=16, resume=bad)
+    with pytest.raises(ValueError, match="resume: "):
+        hinge.run_scene("drape", frames=16, resume=tmp_path / "missing.txt")
+    with pytest.raises(ValueError, match="resume must be a path"):
+        hinge.run_scene("drape", frames=16, resume=3)

@@ -15,6 +15,7 @@ derive (the same text), with its parameters as keyword arguments: numbers, or ar
 hinge in hinge order (``model.hinges`` / ``hinge.hinges(V, F)``). Every error raises ``ValueError``.
 """
 
+import os as _os
 import warnings as _warnings
 
 import numpy as _np
@@ -571,7 +572,7 @@ class ImplicitEuler:
         return self._t.time
 
 
-def run_scene(scene, frames=None, trace=False):
+def run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None):
     """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
     ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
     (frames, n, 3) array, and the run's counts (a dict; per frame in ``frame_newton_iterations``,
@@ -583,11 +584,24 @@ def run_scene(scene, frames=None, trace=False):
     vertex (a row of ``V``) whose free coordinates carry the largest force ‖∂F/∂x_v‖ at the new iterate,
     and that force (−1 and 0 when no coordinate is free); the flag columns add up to the summary's
     ``definite_iterations`` and ``accelerated_iterations``. A run that fails raises ``ValueError`` whose
-    message names the vertex with the largest residual force where the solve stopped."""
+    message names the vertex with the largest residual force where the solve stopped.
+
+    ``checkpoint`` (a path): the run writes its state there when it ends, is interrupted or fails (then
+    the last good frame's, which the ``ValueError`` names), as ``hinge run`` writes ``checkpoint.txt``.
+    ``resume`` (a path): continue from such a file — ``X`` holds the frames after its frame, up to
+    ``frames`` (the scene's by default), ``summary["resumed_after_frame"]`` is that frame (``None`` for a
+    run from rest) and the trace counts frames from it. With the scene unchanged the frames are bitwise
+    those of the run that did not stop; the scene may change (``dt``, contact, solver keys) as long as its
+    mesh has the checkpoint's vertices. A checkpoint that does not fit raises ``ValueError``."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
     if frames is not None:
         frames = _count("frames", frames)
     if not isinstance(trace, bool):
         raise ValueError(f"trace must be True or False, got {trace!r}")
-    return _hinge.run_scene(str(scene), frames, trace)
+    paths = []
+    for name, p in (("checkpoint", checkpoint), ("resume", resume)):
+        if p is not None and not isinstance(p, (str, _os.PathLike)):
+            raise ValueError(f"{name} must be a path, got {p!r}")
+        paths.append(None if p is None else _os.fspath(p))
+    return _hinge.run_scene(str(scene), frames, trace, *paths)
