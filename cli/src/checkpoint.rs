@@ -111,6 +111,8 @@ impl Checkpoint {
     /// missing item, a number that does not parse or is not finite, a negative shift memory or
     /// accumulated plastic angle, a non-positive `dt`, missing or extra lines.
     pub fn parse(text: &str) -> Result<Self, String> {
+        // Capacities from the lines there are, not from the counts the file claims (a damaged count).
+        let available = text.lines().count();
         let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim()));
         let mut next = |what: &str| -> Result<(usize, &str), String> {
             lines.next().ok_or_else(|| format!("ends before {what}"))
@@ -159,8 +161,8 @@ impl Checkpoint {
         }
         let vertices = count(item("vertices")?, "vertices")?;
         let hinges = count(item("plastic_hinges")?, "plastic_hinges")?;
-        let mut positions = Vec::with_capacity(vertices.min(1 << 24));
-        let mut velocities = Vec::with_capacity(vertices.min(1 << 24));
+        let mut positions = Vec::with_capacity(vertices.min(available));
+        let mut velocities = Vec::with_capacity(vertices.min(available));
         for vertex in 0..vertices {
             let (n, line) = next(&format!("vertex {vertex} (of {vertices})"))?;
             let values =
@@ -171,8 +173,8 @@ impl Checkpoint {
         let plastic = if hinges == 0 {
             None
         } else {
-            let mut theta_bar = Vec::with_capacity(hinges.min(1 << 24));
-            let mut alpha = Vec::with_capacity(hinges.min(1 << 24));
+            let mut theta_bar = Vec::with_capacity(hinges.min(available));
+            let mut alpha = Vec::with_capacity(hinges.min(available));
             for hinge in 0..hinges {
                 let (n, line) = next(&format!("hinge {hinge} (of {hinges})"))?;
                 let [t, a] =
@@ -332,6 +334,10 @@ mod tests {
             (
                 format!("{good}1 2\n"),
                 "line 13: more lines than its 2 vertices and 2 plastic",
+            ),
+            (
+                replace_line(7, "vertices 18446744073709551615"),
+                "line 11 (vertex 2): expected 6 numbers, found 2",
             ),
         ];
         for (text, expected) in cases {
