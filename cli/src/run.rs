@@ -77,6 +77,11 @@ pub struct RunArgs {
     /// (a smaller `dt`, a stiffer contact, more frames) as long as its mesh is the checkpoint's.
     #[arg(long, value_name = "FILE")]
     pub resume: Option<PathBuf>,
+    /// Also write the checkpoint after every N-th frame (overwriting it), so that a run killed without
+    /// Ctrl-C (a crash, a batch system's time limit) resumes from at most N frames back. Default: only
+    /// when the run ends, stops or fails.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=6_000_000))]
+    pub checkpoint_every: Option<u64>,
     /// Frame file format: `obj` or `ply` (binary little endian).
     #[arg(long, value_enum, default_value_t = FrameFormat::Obj)]
     pub format: FrameFormat,
@@ -535,6 +540,7 @@ pub fn equilibrium_observed(
         observer,
         mut warn,
         checkpoint: _,
+        checkpoint_every: _,
         resume,
     } = hooks;
     if resume.is_some() {
@@ -1280,6 +1286,9 @@ pub struct Hooks<'a> {
     /// A time-stepped run writes its [`Checkpoint`] to this file when it ends: after its last frame, when
     /// stopped, and when a frame fails (then the last good frame's). Static solves write none.
     pub checkpoint: Option<&'a Path>,
+    /// With [`Hooks::checkpoint`]: also write it after every `checkpoint_every`-th frame (0: only at the
+    /// end).
+    pub checkpoint_every: usize,
     /// A time-stepped run starts from this checkpoint instead of the rest state (its frame, time,
     /// positions, velocities, shift memory and plastic state) and steps the frames after it up to the
     /// scene's `frames`. A static solve refuses it.
@@ -1404,6 +1413,7 @@ pub fn simulate_observed(
         observer,
         mut warn,
         checkpoint,
+        checkpoint_every,
         resume,
     } = hooks;
     // Shared by the steppers a run makes (a new one when pins are released).
@@ -1690,6 +1700,9 @@ pub fn simulate_observed(
         let last = interrupted || frame + 1 == scene.frames;
         write_frame(frame + 1, &x, last)?;
         write_rest_angles(frame + 1, &system)?;
+        if checkpoint_every > 0 && (frame + 1).is_multiple_of(checkpoint_every) && !last {
+            save(frame + 1, &x, &v, &stepper, &system)?;
+        }
         summary.max_plastic_angle = system.max_plastic_angle();
         watch.check(
             &obstacles,
@@ -1962,6 +1975,9 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                     observer: args.trace.then(|| tracer(names.cloned())),
                     warn: None,
                     checkpoint: Some(&checkpoint),
+                    checkpoint_every: args
+                        .checkpoint_every
+                        .map_or(0, |n| usize::try_from(n).unwrap_or(usize::MAX)),
                     resume: resume.as_ref(),
                 },
                 |frame, fs, seconds, _| {

@@ -4855,6 +4855,60 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
     assert!((at10.time - (at6.time + 4.0 * 0.008333333333333333)).abs() < 1e-15);
     assert!((at6.time - 0.1).abs() < 1e-15);
 
+    // A run killed outright (no Ctrl-C) resumes from its last periodic checkpoint (--checkpoint-every 5)
+    // and continues as the run that was not killed.
+    let killed = dir.join("killed");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hinge"))
+        .args([
+            "run",
+            "drape",
+            "--resolution",
+            "12",
+            "--frames",
+            "400",
+            "--no-frames",
+        ])
+        .args(["--checkpoint-every", "5", "--out", killed.to_str().unwrap()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    for line in std::io::BufRead::lines(std::io::BufReader::new(stdout)) {
+        if line.unwrap().starts_with("frame   12/400") {
+            break;
+        }
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let saved = read(&killed);
+    assert!(
+        saved.frame % 5 == 0 && (10..400).contains(&saved.frame),
+        "{}",
+        saved.frame
+    );
+    let until = (saved.frame + 3).to_string();
+    let checkpoint = killed.join("checkpoint.txt");
+    let common = [
+        "drape",
+        "--resolution",
+        "12",
+        "--no-frames",
+        "--frames",
+        &until,
+    ];
+    let mut resumed = common.to_vec();
+    resumed.extend_from_slice(&["--resume", checkpoint.to_str().unwrap()]);
+    run(&resumed, &killed);
+    run(&common, &dir.join("not-killed"));
+    assert!(read(&killed) == read(&dir.join("not-killed")));
+    // Out of range: a one-line error.
+    let o = hinge(&["run", "drape", "--checkpoint-every", "0", "--no-frames"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("--checkpoint-every"), "{err}");
+
     // Checkpoints that do not fit the scene, or are damaged, and --static: one line each.
     let good = dir.join("dt/checkpoint.txt");
     let good = good.to_str().unwrap();
