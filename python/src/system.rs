@@ -995,6 +995,7 @@ pub fn run_scene<'py>(
                     warnings.push(format!("{line} (vertices from 0)"));
                 })),
                 checkpoint: checkpoint.as_deref(),
+                checkpoint_every: 0,
                 resume: resume.as_ref(),
             },
             |k, _, _, x| {
