@@ -909,7 +909,8 @@ type Frames = Vec<Vec<Vector3<f64>>>;
 /// `checkpoint`: a file the run writes its state to when it ends, is interrupted or fails (then the last
 /// good frame's), as `hinge run` writes `checkpoint.txt`; `resume`: such a file to continue from (`X` then
 /// holds the frames after its frame, `summary["resumed_after_frame"]` says which; with the scene unchanged
-/// they are bitwise those of the run that did not stop). With `trace`, `summary["trace"]`
+/// they are bitwise those of the run that did not stop). `checkpoint_every`: also write the checkpoint
+/// after every N-th frame. With `trace`, `summary["trace"]`
 /// is a (k, 11) array with a row per accepted Newton iteration, as `hinge run --trace` prints them: frame
 /// (from 0), iteration (from 1 in each solve), F, ‖∇F‖, ‖Δx‖, α, shift, definite (1 for a step with the
 /// definite Hessian of `globalization = "project-on-demand"`, else 0), accelerated (1 for a step
@@ -918,7 +919,7 @@ type Frames = Vec<Vec<Vector3<f64>>>;
 /// free); the two flags' column sums are the summary's `definite_iterations` and
 /// `accelerated_iterations`.
 #[pyfunction]
-#[pyo3(signature = (scene, frames=None, trace=false, checkpoint=None, resume=None))]
+#[pyo3(signature = (scene, frames=None, trace=false, checkpoint=None, resume=None, checkpoint_every=None))]
 #[allow(clippy::type_complexity)]
 pub fn run_scene<'py>(
     py: Python<'py>,
@@ -927,6 +928,7 @@ pub fn run_scene<'py>(
     trace: bool,
     checkpoint: Option<std::path::PathBuf>,
     resume: Option<std::path::PathBuf>,
+    checkpoint_every: Option<usize>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<i64>>,
@@ -995,7 +997,7 @@ pub fn run_scene<'py>(
                     warnings.push(format!("{line} (vertices from 0)"));
                 })),
                 checkpoint: checkpoint.as_deref(),
-                checkpoint_every: 0,
+                checkpoint_every: checkpoint_every.unwrap_or(0),
                 resume: resume.as_ref(),
             },
             |k, _, _, x| {

@@ -1584,3 +1584,10 @@ def test_run_scene_resumes_from_its_checkpoint_bitwise(tmp_path):
         hinge.run_scene("drape", frames=16, resume=tmp_path / "missing.txt")
     with pytest.raises(ValueError, match="resume must be a path"):
         hinge.run_scene("drape", frames=16, resume=3)
+    # Periodic checkpoints: the file after the run is its end, written every 4 frames on the way.
+    _, _, _, s9 = hinge.run_scene("drape", frames=9, checkpoint=tmp_path / "p.txt", checkpoint_every=4)
+    assert (tmp_path / "p.txt").read_text().splitlines()[2] == "frame 9"
+    with pytest.raises(ValueError, match="checkpoint_every must be at least 1"):
+        hinge.run_scene("drape", frames=9, checkpoint=tmp_path / "p.txt", checkpoint_every=0)
+    with pytest.raises(ValueError, match="checkpoint_every needs checkpoint"):
+        hinge.run_scene("drape", frames=9, checkpoint_every=2)

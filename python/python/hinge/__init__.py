@@ -572,7 +572,7 @@ class ImplicitEuler:
         return self._t.time
 
 
-def run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None):
+def run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None, checkpoint_every=None):
     """Simulates a built-in scene (``"drape"``, ``"shell-drop"``, ``"beam1"`` …) or a TOML scene file as
     ``hinge run`` does. Returns ``(V, F, X, summary)``: the rest mesh, every frame's positions as a
     (frames, n, 3) array, and the run's counts (a dict; per frame in ``frame_newton_iterations``,
@@ -592,7 +592,9 @@ def run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None):
     ``frames`` (the scene's by default), ``summary["resumed_after_frame"]`` is that frame (``None`` for a
     run from rest) and the trace counts frames from it. With the scene unchanged the frames are bitwise
     those of the run that did not stop; the scene may change (``dt``, contact, solver keys) as long as its
-    mesh has the checkpoint's vertices. A checkpoint that does not fit raises ``ValueError``."""
+    mesh has the checkpoint's vertices. A checkpoint that does not fit raises ``ValueError``.
+    ``checkpoint_every`` (a positive integer, with ``checkpoint``): also write it after every N-th frame, so
+    that a process killed outright resumes from at most N frames back."""
     if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
         raise ValueError(f"frames must be an integer, got {frames!r}")
     if frames is not None:
@@ -604,4 +606,8 @@ def run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None):
         if p is not None and not isinstance(p, (str, _os.PathLike)):
             raise ValueError(f"{name} must be a path, got {p!r}")
         paths.append(None if p is None else _os.fspath(p))
-    return _hinge.run_scene(str(scene), frames, trace, *paths)
+    if checkpoint_every is not None:
+        if checkpoint is None:
+            raise ValueError("checkpoint_every needs checkpoint, the file to write")
+        checkpoint_every = _count("checkpoint_every", checkpoint_every, minimum=1)
+    return _hinge.run_scene(str(scene), frames, trace, *paths, checkpoint_every)
