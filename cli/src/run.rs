@@ -890,13 +890,13 @@ fn check_initial_state(
 /// Prepares a run resumed from checkpoint `c` (whose positions and velocities the caller starts from):
 /// checks it against the scene (vertex count, frame within the scene's frames, finite values, plasticity
 /// on both sides or neither) and hands the plastic state to `system` and the shift memory to the implicit
-/// stepper.
+/// stepper, unless the stepper is `fresh` (made for pins released at the checkpoint's frame).
 fn resume_state(
     c: &Checkpoint,
     scene: &Scene,
     rest: &TriMesh,
     system: &mut System,
-    stepper: &mut Stepper,
+    (stepper, fresh): (&mut Stepper, bool),
 ) -> Result<(), String> {
     let n = rest.n_vertices();
     if c.positions.len() != n || c.velocities.len() != n {
@@ -936,7 +936,7 @@ fn resume_state(
             );
         }
     }
-    if let Stepper::Implicit(s) = stepper {
+    if let (Stepper::Implicit(s), false) = (stepper, fresh) {
         s.newton_mut()
             .restore_shift_memory(c.shift_memory)
             .map_err(|e| format!("--resume: {e}"))?;
@@ -1504,7 +1504,10 @@ pub fn simulate_observed(
     let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = match resume {
         Some(c) => {
-            resume_state(c, scene, rest, &mut system, &mut stepper)?;
+            // A pin group released at the checkpoint's frame: the run that was not stopped made a new
+            // stepper there, whose shift memory started afresh; so does this one.
+            let fresh = active_at(c.time - c.dt) != active;
+            resume_state(c, scene, rest, &mut system, (&mut stepper, fresh))?;
             (c.positions.clone(), c.velocities.clone())
         }
         None => (rest.positions().to_vec(), vec![Vector3::zeros(); n]),
