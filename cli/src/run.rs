@@ -604,7 +604,7 @@ pub fn equilibrium_observed(
             }
         };
     if !interrupted {
-        watch.check(&obstacles, 0.0, &x, None, warn.as_deref_mut());
+        watch.check(&obstacles, 0.0, (&x, &[]), None, warn.as_deref_mut());
     }
     let mut summary = RunSummary {
         frames: 0,
@@ -1004,6 +1004,9 @@ fn emit(warn: Option<&mut (dyn FnMut(&str) + '_)>, line: &str) {
 /// not for that.
 pub const LET_THROUGH_DEPTH: f64 = 0.01;
 
+/// Positions and their time: a point on a run's path (an accepted substep's end).
+type Waypoint = (Vec<Vector3<f64>>, f64);
+
 /// The warnings of vertices inside penalty obstacles (barrier obstacles refuse such states with errors of
 /// their own), one line per obstacle and run at most, to `warn` or on stderr as `hinge: warning: …`:
 /// [`ContactWatch::start`] for a mesh that starts inside an obstacle, [`ContactWatch::check`] for vertices
@@ -1119,17 +1122,27 @@ impl<'a> ContactWatch<'a> {
         &mut self,
         obstacles: &[(Obstacle, Option<Motion>)],
         time: f64,
-        x: &[Vector3<f64>],
+        (x, substeps): (&[Vector3<f64>], &[Waypoint]),
         when: Option<usize>,
         mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
     ) {
         if self.pending.iter().all(Option::is_none) {
             return;
         }
-        // The last frame end's positions, and the obstacles placed then (at a frame end only).
+        // At a frame end, the path since the last one: its positions, then those at the ends of the
+        // frame's substeps before the last (whose end is `x`), then `x`; with the obstacles placed at
+        // each waypoint's time.
         let before = match (when, &self.last) {
             (Some(k), Some((last, last_time))) => {
-                Some((k, last, obstacles_at(obstacles, *last_time)))
+                let inner = &substeps[..substeps.len().saturating_sub(1)];
+                let mut points: Vec<&[Vector3<f64>]> = vec![last.as_slice()];
+                let mut placed = vec![obstacles_at(obstacles, *last_time)];
+                for (p, t) in inner {
+                    points.push(p);
+                    placed.push(obstacles_at(obstacles, *t));
+                }
+                points.push(x);
+                Some((k, points, placed))
             }
             _ => None,
         };
@@ -1139,10 +1152,17 @@ impl<'a> ContactWatch<'a> {
             };
             let line = if let Some(found) = inside(obstacle, x, &self.in_face, self.depth) {
                 self.let_through_line(i, when, found, contact)
-            } else if let Some((k, last, placed)) = &before
-                && let Some(found) = passed_through(&placed[i], obstacle, last, x, &self.in_face)
+            } else if let Some((k, points, placed)) = &before
+                && let Some(found) = {
+                    let spheres: Vec<&Obstacle> = placed
+                        .iter()
+                        .map(|o| &o[i])
+                        .chain(std::iter::once(obstacle))
+                        .collect();
+                    passed_through(points, &spheres, &self.in_face)
+                }
             {
-                self.passed_through_line(i, *k, found, contact)
+                self.passed_through_line(i, *k, points.len() - 1, found, contact)
             } else {
                 continue;
             };
@@ -1195,20 +1215,26 @@ impl<'a> ContactWatch<'a> {
         &self,
         i: usize,
         k: usize,
+        substeps: usize,
         (count, closest): (usize, (usize, f64)),
         (stiffness, margin): (f64, f64),
     ) -> String {
         let one = count == 1;
         let them = if one { "it" } else { "them" };
         format!(
-            "frame {k}: {count} {} through obstacles[{i}] since frame {} ({} straight path{} relative to the \
+            "frame {k}: {count} {} through obstacles[{i}] since frame {} ({} {} relative to the \
              sphere {} within half its radius of its centre; the closest, vertex {}, {:.3e} m from it): its \
              penalty contact (stiffness {stiffness:e} N/m, margin {margin:e} m) acts where a step ends and \
              never held {them}; a smaller dt or model = \"barrier\" keeps {them} out",
             if one { "vertex went" } else { "vertices went" },
             k - 1,
             if one { "its" } else { "their" },
-            if one { "" } else { "s" },
+            match (substeps > 1, one) {
+                (false, true) => "straight path".to_string(),
+                (false, false) => "straight paths".to_string(),
+                (true, true) => format!("path through the frame's {substeps} substeps"),
+                (true, false) => format!("paths through the frame's {substeps} substeps"),
+            },
             if one { "passes" } else { "pass" },
             self.vertex(closest.0),
             closest.1,
@@ -1219,45 +1245,53 @@ impl<'a> ContactWatch<'a> {
 /// How many of the vertices that lie in a face went through a sphere between two frame ends, and the one
 /// closest to its centre with that distance; `None` when none did or the obstacle is not a sphere (a plane
 /// needs no such test: a straight path between two points outside a half-space stays outside it, so a
-/// vertex that went through a plane ends beyond it, where [`inside`] sees it). A
-/// vertex went through when its straight path from `from` (with the sphere at `before`) to `to` (with it
-/// at `now`), taken relative to the sphere's centre, passes within half the radius of the centre. The
-/// steps of implicit Euler move each vertex along such straight paths, and a path that starts and ends
-/// outside the sphere and comes that close to its centre crosses it; a vertex sliding over the sphere
-/// stays far from that (its path's chord dips a distance L²/(8R) below the surface for a move L, a tenth
-/// of the radius at L = 0.9 R within one frame). With substeps the frame's path is their chain, and only its
-/// ends are seen.
+/// vertex that went through a plane ends beyond it, where [`inside`] sees it). The path runs through the
+/// waypoints `points` (the last frame end, the ends of the frame's substeps, this frame end), straight
+/// between consecutive ones, each taken relative to the sphere's centre at that waypoint (`spheres`, one
+/// per waypoint); a vertex went through when it passes within half the radius of the centre. The steps of
+/// implicit Euler move each vertex along such straight paths, and a path that starts and ends outside the
+/// sphere and comes that close to its centre crosses it; a vertex sliding over the sphere stays far from
+/// that (its path's chord dips a distance L²/(8R) below the surface for a move L, a tenth of the radius at
+/// L = 0.9 R within one step).
 fn passed_through(
-    before: &Obstacle,
-    now: &Obstacle,
-    from: &[Vector3<f64>],
-    to: &[Vector3<f64>],
+    points: &[&[Vector3<f64>]],
+    spheres: &[&Obstacle],
     in_a_face: &[bool],
 ) -> Option<(usize, (usize, f64))> {
-    let (
-        Obstacle::Sphere { center: c0, .. },
-        Obstacle::Sphere {
-            center: c1, radius, ..
-        },
-    ) = (before, now)
-    else {
+    let mut centres = Vec::with_capacity(spheres.len());
+    let mut radius = 0.0;
+    for o in spheres {
+        let Obstacle::Sphere {
+            center, radius: r, ..
+        } = o
+        else {
+            return None;
+        };
+        centres.push(*center);
+        radius = *r;
+    }
+    if points.len() < 2 || points.len() != centres.len() {
         return None;
-    };
+    }
     let mut count = 0usize;
     let mut closest = (0usize, f64::INFINITY);
-    for (v, (p, q)) in from.iter().zip(to).enumerate() {
+    for v in 0..points[0].len() {
         if !in_a_face[v] {
             continue;
         }
-        let (a, b) = (p - c0, q - c1);
-        let ab = b - a;
-        let len2 = ab.norm_squared();
-        let t = if len2 > 0.0 {
-            (-a.dot(&ab) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let d = (a + ab * t).norm();
+        // The closest approach over the segments between consecutive waypoints.
+        let mut d = f64::INFINITY;
+        for w in 0..points.len() - 1 {
+            let (a, b) = (points[w][v] - centres[w], points[w + 1][v] - centres[w + 1]);
+            let ab = b - a;
+            let len2 = ab.norm_squared();
+            let t = if len2 > 0.0 {
+                (-a.dot(&ab) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            d = d.min((a + ab * t).norm());
+        }
         if d < 0.5 * radius {
             count += 1;
             if d < closest.1 {
@@ -1439,6 +1473,14 @@ pub fn simulate_observed(
     let groups = scene.pin_groups(rest)?;
     let mut fixed: Vec<usize> = scene.fixed_pins(rest)?;
     fixed.extend(rest.unreferenced_vertices());
+    // The accepted substep ends of the frame being stepped (positions, time), for the path test through
+    // penalty spheres ([`ContactWatch::check`]); recorded only when there is such a sphere.
+    type Path = Arc<std::sync::Mutex<Vec<Waypoint>>>;
+    let path: Option<Path> = scene
+        .obstacles
+        .iter()
+        .any(|o| o.kind == "sphere" && o.model != "barrier")
+        .then(Path::default);
     let make_stepper = |system: &hinge_core::energy::System,
                         active: &[bool],
                         solver: Box<dyn LinearSolver>|
@@ -1474,6 +1516,14 @@ pub fn simulate_observed(
             )
             .map_err(|e| e.to_string())?;
             stepper.newton_mut().set_stop(stop.cloned());
+            if let Some(path) = &path {
+                let path = Arc::clone(path);
+                stepper.set_substep_observer(Some(Box::new(move |x: &[Vector3<f64>], t: f64| {
+                    if let Ok(mut p) = path.lock() {
+                        p.push((x.to_vec(), t));
+                    }
+                })));
+            }
             if let Some(shared) = &observer {
                 let shared = Arc::clone(shared);
                 stepper
@@ -1636,6 +1686,9 @@ pub fn simulate_observed(
             }
         };
         let motion: Option<&dyn PinMotion> = (!groups.is_empty()).then_some(&targets);
+        if let Some(Ok(mut p)) = path.as_ref().map(|p| p.lock()) {
+            p.clear();
+        }
         let result = match &mut stepper {
             Stepper::Implicit(s) => s.advance_with(&mut system, &mut x, &mut v, policy, motion),
             Stepper::Explicit(s) => s.advance_with(&mut system, &mut x, &mut v, motion),
@@ -1707,10 +1760,14 @@ pub fn simulate_observed(
             save(frame + 1, &x, &v, &stepper, &system)?;
         }
         summary.max_plastic_angle = system.max_plastic_angle();
+        let substeps = path
+            .as_ref()
+            .and_then(|p| p.lock().ok().map(|mut p| std::mem::take(&mut *p)))
+            .unwrap_or_default();
         watch.check(
             &obstacles,
             t0 + scene.dt,
-            &x,
+            (&x, &substeps),
             Some(frame + 1),
             warn.as_deref_mut(),
         );
@@ -2431,6 +2488,60 @@ mod tests {
         assert!(
             err.starts_with("material.membrane: unknown `linear`"),
             "{err}"
+        );
+    }
+}
+
+#[cfg(test)]
+mod path_tests {
+    use super::{ContactWatch, build};
+    use crate::scene::load;
+    use hinge_core::nalgebra::Vector3;
+
+    /// A frame taken in substeps: the path test follows the substeps' ends. The centre vertex of a 3 × 3
+    /// drape goes from 0.3 m above the sphere's centre (radius 0.25) to the centre at the first substep's
+    /// end and on to 0.3 m above a point 0.6 m aside at the frame's end: the straight line between the
+    /// frame's ends stays 0.3 m from the centre (no warning from it), the chain through the substep passes
+    /// through it.
+    #[test]
+    fn the_path_test_follows_a_frame_through_its_substeps() {
+        let (mut scene, _) = load("drape").unwrap();
+        scene.set_resolution(2).unwrap();
+        let rest = scene.rest_mesh(None).unwrap();
+        let obstacles = build(&scene, &rest, true).unwrap().obstacles;
+        let start: Vec<Vector3<f64>> = rest.positions().to_vec();
+        assert_eq!(start.len(), 9);
+        let centre = 4;
+        assert!((start[centre] - Vector3::new(0.0, 0.0, 0.3)).norm() < 1e-12);
+        let (mut mid, mut end) = (start.clone(), start.clone());
+        mid[centre] = Vector3::zeros();
+        end[centre] = Vector3::new(0.6, 0.0, 0.3);
+        let dt = scene.dt;
+        let lines = std::cell::RefCell::new(Vec::<String>::new());
+        let mut warn = |l: &str| lines.borrow_mut().push(l.to_string());
+        // Frame ends only (one substep): nothing.
+        let mut watch = ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0), None, None);
+        watch.check(
+            &obstacles,
+            dt,
+            (&end, &[(end.clone(), dt)]),
+            Some(1),
+            Some(&mut warn),
+        );
+        assert!(lines.borrow().is_empty(), "{lines:?}");
+        // Through the substep: one line naming the centre vertex, 0 m from the centre.
+        let mut watch = ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0), None, None);
+        let substeps = [(mid.clone(), 0.5 * dt), (end.clone(), dt)];
+        watch.check(&obstacles, dt, (&end, &substeps), Some(1), Some(&mut warn));
+        let lines = lines.borrow();
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(
+            lines[0].starts_with(
+                "frame 1: 1 vertex went through obstacles[0] since frame 0 (its path through the frame's 2 \
+                 substeps relative to the sphere passes within half its radius of its centre; the closest, \
+                 vertex 4, 0.000e0 m from it)"
+            ),
+            "{lines:?}"
         );
     }
 }

@@ -646,6 +646,10 @@ pub struct IterationReport {
 /// The callback of [`Newton::set_observer`].
 pub type Observer = Box<dyn FnMut(&IterationReport) + Send>;
 
+/// A callback [`ImplicitEuler::set_substep_observer`] calls after every accepted (sub)step with its end
+/// positions and end time.
+pub type SubstepObserver = Box<dyn FnMut(&[Vector3<f64>], f64) + Send>;
+
 /// A Newton minimiser bound to an objective's pattern and a set of pins (the symbolic analysis is done once
 /// here and reused by every iteration and every later solve).
 pub struct Newton {
@@ -1559,6 +1563,8 @@ pub struct ImplicitEuler {
     committed: Option<(Vec<Vector3<f64>>, f64)>,
     /// The time of the current state (s): the system's moving parts are placed at it between steps.
     time: f64,
+    /// Called after every accepted (sub)step of [`ImplicitEuler::advance_with`].
+    substep_observer: Option<SubstepObserver>,
 }
 
 impl std::fmt::Debug for ImplicitEuler {
@@ -1608,7 +1614,16 @@ impl ImplicitEuler {
             pins,
             committed: None,
             time: 0.0,
+            substep_observer: None,
         })
+    }
+
+    /// A callback called after every accepted (sub)step of [`ImplicitEuler::advance`] and
+    /// [`ImplicitEuler::advance_with`] with the positions and time it ends at: the path a frame took
+    /// through its substeps (a frame that fails after some were accepted sets its state back, and those
+    /// calls were made all the same). It cannot change the steps. `None` removes it.
+    pub fn set_substep_observer(&mut self, observer: Option<SubstepObserver>) {
+        self.substep_observer = observer;
     }
 
     /// Checks that every position and velocity coordinate is finite (what every step checks first).
@@ -1887,6 +1902,9 @@ impl ImplicitEuler {
                     fs.smallest_fraction = fs.smallest_fraction.min(h as f64 / total as f64);
                     let g = s.gradient_norms.last().copied().unwrap_or(0.0);
                     fs.max_final_gradient_norm = fs.max_final_gradient_norm.max(g);
+                    if let Some(o) = &mut self.substep_observer {
+                        o(x, t_end);
+                    }
                     t += h;
                     // Grow back when the next, doubled substep starts on its own grid.
                     if level > 0 && t % (total >> (level - 1)) == 0 {

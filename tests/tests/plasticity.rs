@@ -668,3 +668,57 @@ fn the_plastic_state_of_a_checkpoint_continues_the_law_exactly() {
         assert_eq!(newton.shift_memory(), 0.1 + 0.2);
     }
 }
+
+/// `ImplicitEuler::set_substep_observer` sees every accepted substep's end: a frame that a gate makes
+/// take four substeps of dt/4 reports the times dt/4 … dt and, last, the frame's end positions; the
+/// observer changes nothing (the same frame without it ends bitwise the same).
+#[test]
+fn the_substep_observer_sees_every_accepted_substep_end() {
+    let (rest, fold) = one_hinge();
+    let dt = 0.01;
+    let law = Plasticity {
+        yield_angle: 0.05,
+        hardening: 0.3,
+    };
+    let run = |observe: bool| {
+        let (ended, evaluated) = (Times::default(), Times::default());
+        let terms: Vec<Box<dyn Energy>> = vec![
+            plastic_hinges(&rest, law),
+            // Rejects dt and dt/2: four substeps of dt/4.
+            Box::new(StepGate::new(4, dt / 3.0, &ended, &evaluated)),
+        ];
+        let mut sys = System::new(4, terms).unwrap();
+        let mut stepper = ImplicitEuler::new(
+            &sys,
+            dt,
+            lumped_masses(&rest, 1.0),
+            Pins::new(4, vec![0, 1, 2]).unwrap(),
+            default_solver(),
+            params_tight(),
+        )
+        .unwrap();
+        let seen = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        if observe {
+            let seen = std::sync::Arc::clone(&seen);
+            stepper.set_substep_observer(Some(Box::new(move |x: &[Vector3<f64>], t: f64| {
+                seen.lock().unwrap().push((x.to_vec(), t));
+            })));
+        }
+        let (mut x, mut v) = (fold(0.9), vec![Vector3::zeros(); 4]);
+        v[3] = Vector3::new(0.0, 1.0, -2.0);
+        let fs = stepper
+            .advance(&mut sys, &mut x, &mut v, SubstepPolicy { max_halvings: 2 })
+            .unwrap();
+        let seen = seen.lock().unwrap().clone();
+        (fs.substeps, x, seen)
+    };
+    let (substeps, x, seen) = run(true);
+    assert_eq!(substeps, 4);
+    let times: Vec<f64> = seen.iter().map(|(_, t)| *t).collect();
+    assert_eq!(times, vec![0.25 * dt, 0.5 * dt, 0.75 * dt, dt]);
+    assert_eq!(seen.last().unwrap().0, x);
+    assert_ne!(seen[0].0, x);
+    let (_, unobserved, none) = run(false);
+    assert!(none.is_empty());
+    assert_eq!(unobserved, x);
+}
