@@ -942,6 +942,16 @@ pub fn run_scene<'py>(
         }
         sc.frames = f;
     }
+    // A checkpoint that cannot be written is said before the run, not after it.
+    if let Some(p) = &checkpoint {
+        let dir = p.parent().filter(|d| !d.as_os_str().is_empty());
+        if dir.is_some_and(|d| !d.is_dir()) || p.is_dir() {
+            return Err(value_error(format!(
+                "checkpoint: {} cannot be written (no such directory, or it is a directory)",
+                p.display()
+            )));
+        }
+    }
     let resume = resume
         .map(|p| hinge_cli::checkpoint::Checkpoint::read(&p))
         .transpose()

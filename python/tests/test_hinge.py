@@ -1591,3 +1591,7 @@ def test_run_scene_resumes_from_its_checkpoint_bitwise(tmp_path):
         hinge.run_scene("drape", frames=9, checkpoint=tmp_path / "p.txt", checkpoint_every=0)
     with pytest.raises(ValueError, match="checkpoint_every needs checkpoint"):
         hinge.run_scene("drape", frames=9, checkpoint_every=2)
+    with pytest.raises(ValueError, match="cannot be written"):
+        hinge.run_scene("drape", frames=9, checkpoint=tmp_path / "no" / "such" / "c.txt")
+    with pytest.raises(ValueError, match="cannot be written"):
+        hinge.run_scene("drape", frames=9, checkpoint=tmp_path)
