@@ -4656,27 +4656,28 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
     // arrival on the sphere, lie in the resumed half), the crease (plasticity with hardening, a pin group
     // turning then released), the drape under a sphere moving by keyframes, a damped beam, and beam1 by
     // the explicit integrator.
-    let keyframes = dir.join("moving.toml");
-    std::fs::write(
-        &keyframes,
-        String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).replace(
+    let keyframes = scene_variant(
+        &dir,
+        "moving.toml",
+        "drape",
+        &[(
             "margin = 0.005\n",
             "margin = 0.005\nmotion = { kind = \"keyframes\", times = [0.1, 0.3], offsets = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]] }\n",
-        ),
-    )
-    .unwrap();
-    let explicit = dir.join("explicit.toml");
-    std::fs::write(
-        &explicit,
-        String::from_utf8_lossy(&hinge(&["scenes", "show", "beam1"]).stdout)
-            .replace("drag = 5.0", "drag = 0.0")
-            .replace("damping = 9.53907e-07", "damping = 0.0")
-            .replace(
+        )],
+    );
+    let explicit = scene_variant(
+        &dir,
+        "explicit.toml",
+        "beam1",
+        &[
+            ("drag = 5.0", "drag = 0.0"),
+            ("damping = 9.53907e-07", "damping = 0.0"),
+            (
                 "[solver]",
                 "[solver]\nintegrator = \"symplectic-euler\"\nsubsteps = 1000",
             ),
-    )
-    .unwrap();
+        ],
+    );
     let cases: [(&str, &[&str], usize, usize); 5] = [
         ("drape", &["--resolution", "12"], 24, 9),
         // Stopped at frame 30, where its pin group is released (t = 0.5 s).
@@ -4759,17 +4760,18 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
 
     // A run that fails writes its last good frame as the checkpoint and says so; the scene made
     // convergeable again (more Newton iterations) resumes from it and runs to the end.
-    let text = String::from_utf8_lossy(&hinge(&["scenes", "show", "drape"]).stdout).to_string();
-    let hopeless = dir.join("hopeless.toml");
-    std::fs::write(
-        &hopeless,
-        text.replace("max_iterations = 300", "max_iterations = 1")
-            .replace(
+    let hopeless = scene_variant(
+        &dir,
+        "hopeless.toml",
+        "drape",
+        &[
+            ("max_iterations = 300", "max_iterations = 1"),
+            (
                 "gradient_tolerance = 1e-6",
                 "gradient_tolerance = 1e-6\nmax_substep_halvings = 1",
             ),
-    )
-    .unwrap();
+        ],
+    );
     let out = dir.join("failed");
     let o = hinge(&[
         "run",
@@ -4827,12 +4829,12 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
 
     // Another dt: the frames after the checkpoint take the new one, the time runs on from the
     // checkpoint's.
-    let halved = dir.join("halved.toml");
-    std::fs::write(
-        &halved,
-        text.replace("dt = 0.016666666666666666", "dt = 0.008333333333333333"),
-    )
-    .unwrap();
+    let halved = scene_variant(
+        &dir,
+        "halved.toml",
+        "drape",
+        &[("dt = 0.016666666666666666", "dt = 0.008333333333333333")],
+    );
     run(
         &["drape", "--resolution", "8", "--frames", "6", "--no-frames"],
         &dir.join("dt"),
@@ -4913,11 +4915,15 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
     // Checkpoints that do not fit the scene, or are damaged, and --static: one line each.
     let good = dir.join("dt/checkpoint.txt");
     let good = good.to_str().unwrap();
-    let elastic = dir.join("elastic-crease.toml");
-    let crease = String::from_utf8_lossy(&hinge(&["scenes", "show", "crease"]).stdout).to_string();
-    let plasticity = "[bending.plasticity]\nyield_angle = 0.02      # rad\nhardening = 0.5\n";
-    assert!(crease.contains(plasticity));
-    std::fs::write(&elastic, crease.replace(plasticity, "")).unwrap();
+    let elastic = scene_variant(
+        &dir,
+        "elastic-crease.toml",
+        "crease",
+        &[(
+            "[bending.plasticity]\nyield_angle = 0.02      # rad\nhardening = 0.5\n",
+            "",
+        )],
+    );
     let plastic = dir.join("c/checkpoint.txt");
     let damaged = dir.join("damaged.txt");
     let lines: Vec<String> = std::fs::read_to_string(good)
