@@ -142,8 +142,7 @@ impl Checkpoint {
                 .map_err(|_| format!("line {n}: {key} `{}` is not a count", shorten(&value)))
         };
         let number = |(n, value): (usize, String), key: &str| -> Result<f64, String> {
-            let x = parse_number(&value).map_err(|m| format!("line {n}: {key} {m}"))?;
-            Ok(x)
+            parse_number(&value).map_err(|m| format!("line {n}: {key} {m}"))
         };
         let frame = count(item("frame")?, "frame")?;
         let time = number(item("time")?, "time")?;

@@ -80,8 +80,9 @@ pub struct RunArgs {
     /// Also write the checkpoint after every N-th frame (overwriting it), so that a run killed without
     /// Ctrl-C (a crash, a batch system's time limit) resumes from at most N frames back. Default: only
     /// when the run ends, stops or fails.
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=6_000_000))]
-    pub checkpoint_every: Option<u64>,
+    #[arg(long, value_name = "N",
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=6_000_000))]
+    pub checkpoint_every: Option<usize>,
     /// Frame file format: `obj` or `ply` (binary little endian).
     #[arg(long, value_enum, default_value_t = FrameFormat::Obj)]
     pub format: FrameFormat,
@@ -890,13 +891,13 @@ fn check_initial_state(
 /// Prepares a run resumed from checkpoint `c` (whose positions and velocities the caller starts from):
 /// checks it against the scene (vertex count, frame within the scene's frames, finite values, plasticity
 /// on both sides or neither) and hands the plastic state to `system` and the shift memory to the implicit
-/// stepper, unless the stepper is `fresh` (made for pins released at the checkpoint's frame).
+/// stepper.
 fn resume_state(
     c: &Checkpoint,
     scene: &Scene,
     rest: &TriMesh,
     system: &mut System,
-    (stepper, fresh): (&mut Stepper, bool),
+    stepper: &mut Stepper,
 ) -> Result<(), String> {
     let n = rest.n_vertices();
     if c.positions.len() != n || c.velocities.len() != n {
@@ -936,7 +937,7 @@ fn resume_state(
             );
         }
     }
-    if let (Stepper::Implicit(s), false) = (stepper, fresh) {
+    if let Stepper::Implicit(s) = stepper {
         s.newton_mut()
             .restore_shift_memory(c.shift_memory)
             .map_err(|e| format!("--resume: {e}"))?;
@@ -1550,14 +1551,14 @@ pub fn simulate_observed(
     let first_frame = resume.map_or(0, |c| c.frame);
     let origin = resume.map_or(0.0, |c| c.time - c.frame as f64 * scene.dt);
     let t_start = origin + first_frame as f64 * scene.dt;
-    let mut active = active_at(t_start);
+    // The pins of the frame the run starts after (of its start, for a run from rest): a group released
+    // at the first frame stepped here leaves the pins in the loop below, with a new stepper, as it did
+    // in the run that was not stopped.
+    let mut active = active_at(resume.map_or(0.0, |c| c.time - c.dt));
     let mut stepper = make_stepper(&system, &active, solver)?;
     let (mut x, mut v) = match resume {
         Some(c) => {
-            // A pin group released at the checkpoint's frame: the run that was not stopped made a new
-            // stepper there, whose shift memory started afresh; so does this one.
-            let fresh = active_at(c.time - c.dt) != active;
-            resume_state(c, scene, rest, &mut system, (&mut stepper, fresh))?;
+            resume_state(c, scene, rest, &mut system, &mut stepper)?;
             (c.positions.clone(), c.velocities.clone())
         }
         None => (rest.positions().to_vec(), vec![Vector3::zeros(); n]),
@@ -1655,7 +1656,7 @@ pub fn simulate_observed(
         let path = o.dir.join(format!("rest_angles_{k:04}.txt"));
         std::fs::write(&path, text).map_err(|e| format!("{}: {e}", path.display()))
     };
-    write_frame(first_frame, &x, first_frame >= scene.frames)?;
+    write_frame(first_frame, &x, false)?;
     write_rest_angles(first_frame, &system)?;
     let policy = SubstepPolicy {
         max_halvings: scene.solver.max_substep_halvings,
@@ -1930,12 +1931,6 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         scene.set_resolution(r)?;
     }
     let resume = match &args.resume {
-        Some(_) if args.statics => {
-            return Err(
-                "--resume continues a time-stepped run; a static solve (--static) starts from rest"
-                    .into(),
-            );
-        }
         Some(path) => Some(Checkpoint::read(path).map_err(|e| format!("--resume: {e}"))?),
         None => None,
     };
@@ -2019,6 +2014,8 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                     stop: Some(&*INTERRUPTED),
                     names,
                     observer: Some(progress),
+                    // Refused by the static solve, with the reason.
+                    resume: resume.as_ref(),
                     ..Hooks::default()
                 },
             )
@@ -2035,9 +2032,7 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                     observer: args.trace.then(|| tracer(names.cloned())),
                     warn: None,
                     checkpoint: Some(&checkpoint),
-                    checkpoint_every: args
-                        .checkpoint_every
-                        .map_or(0, |n| usize::try_from(n).unwrap_or(usize::MAX)),
+                    checkpoint_every: args.checkpoint_every.unwrap_or(0),
                     resume: resume.as_ref(),
                 },
                 |frame, fs, seconds, _| {

@@ -902,8 +902,8 @@ impl PyStepper {
 /// Frames of a scene: (frames, n, 3) positions.
 type Frames = Vec<Vec<Vector3<f64>>>;
 
-/// `run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None)`: simulates a built-in scene
-/// (`drape`, `shell-drop`, `beam1`, …) or a TOML scene file, as `hinge run` does, and returns
+/// `run_scene(scene, frames=None, trace=False, checkpoint=None, resume=None, checkpoint_every=None)`:
+/// simulates a built-in scene (`drape`, `shell-drop`, `beam1`, …) or a TOML scene file, as `hinge run` does, and returns
 /// `(V, F, X, summary)`: the rest mesh, the positions of every frame as a (frames, n, 3) array, and the
 /// run's counts, per frame too (`frame_newton_iterations`, `frame_factorizations`, `frame_substeps`).
 /// `checkpoint`: a file the run writes its state to when it ends, is interrupted or fails (then the last
