@@ -410,6 +410,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         extrapolate: scene.solver.extrapolate,
         remember_shift: scene.solver.remember_shift,
         geodesic_acceleration: scene.solver.geodesic_acceleration,
+        definite_shift_ratio: scene.solver.definite_shift_ratio,
         ..NewtonParams::default()
     };
     let solver = linear_solver(scene);

@@ -461,6 +461,12 @@ pub struct SolverSpec {
     /// path of versions before it; see `hinge_solver::newton::NewtonParams::geodesic_acceleration`).
     #[serde(default = "default_geodesic_acceleration")]
     pub geodesic_acceleration: bool,
+    /// `shifted-exact` in a time step: when an iteration's diagonal shift exceeds this many times the
+    /// largest inertia term m/Δt² of a vertex, it takes the definite Hessian instead, until a full step
+    /// (non-negative; `inf`: never; default 1; see
+    /// `hinge_solver::newton::NewtonParams::definite_shift_ratio`).
+    #[serde(default = "default_definite_shift_ratio")]
+    pub definite_shift_ratio: f64,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
     /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
     #[serde(default = "default_membrane_continuation")]
@@ -489,6 +495,10 @@ fn default_extrapolate() -> bool {
 
 fn default_geodesic_acceleration() -> bool {
     true
+}
+
+fn default_definite_shift_ratio() -> f64 {
+    hinge_solver::newton::DEFINITE_SHIFT_RATIO
 }
 
 fn default_membrane_continuation() -> bool {
@@ -535,6 +545,7 @@ impl Default for SolverSpec {
             extrapolate: default_extrapolate(),
             remember_shift: default_remember_shift(),
             geodesic_acceleration: default_geodesic_acceleration(),
+            definite_shift_ratio: default_definite_shift_ratio(),
             membrane_continuation: default_membrane_continuation(),
             integrator: default_integrator(),
             substeps: default_substeps(),
@@ -778,6 +789,12 @@ impl Scene {
             return Err(format!(
                 "solver.globalization: unknown `{}` (project-on-demand, shifted-exact)",
                 self.solver.globalization
+            ));
+        }
+        if !(self.solver.definite_shift_ratio >= 0.0) {
+            return Err(format!(
+                "solver.definite_shift_ratio: must be non-negative (inf: never), got {}",
+                Num(self.solver.definite_shift_ratio)
             ));
         }
         // 0 leaves convergence to the relative and step tests; a negative or NaN tolerance is a typo.

@@ -938,6 +938,20 @@ fn scenes_are_listed_shown_and_validated() {
             ),
             "solver.relative_step_tolerance",
         ),
+        (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\ndefinite_shift_ratio = -1.0",
+            ),
+            "solver.definite_shift_ratio",
+        ),
+        (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\ndefinite_shift_ratio = nan",
+            ),
+            "solver.definite_shift_ratio",
+        ),
     ];
     for (i, (toml, key)) in cases.iter().enumerate() {
         let f = dir.join(format!("bad{i}.toml"));
@@ -1538,6 +1552,39 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
         runs[1]["accelerated_iterations"].as_u64().unwrap() > 0,
         "{}",
         runs[1]
+    );
+    // `definite_shift_ratio`: at 0 every iteration that needs a shift takes the definite Hessian instead,
+    // at `inf` none does (the shift alone); both converge every step.
+    let ratio = |value: &str| {
+        let f = dir.join(format!("ratio_{value}.toml"));
+        std::fs::write(
+            &f,
+            shown.replace(
+                "gradient_tolerance = 1e-6",
+                &format!("gradient_tolerance = 1e-6\ndefinite_shift_ratio = {value}"),
+            ),
+        )
+        .unwrap();
+        let mut all = vec![f.to_str().unwrap().to_string()];
+        all.extend(args.iter().map(|a| a.to_string()));
+        let all: Vec<&str> = all.iter().map(String::as_str).collect();
+        run_summary(&dir.join(format!("ratio_{value}")), &all)
+    };
+    let (always, never) = (ratio("0.0"), ratio("inf"));
+    println!(
+        "definite iterations: ratio 0 {}, ratio inf {}",
+        always["definite_iterations"], never["definite_iterations"]
+    );
+    for r in [&always, &never] {
+        assert!(
+            r["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
+            "{r}"
+        );
+    }
+    assert_eq!(never["definite_iterations"].as_u64(), Some(0), "{never}");
+    assert!(
+        always["definite_iterations"].as_u64().unwrap() > 0,
+        "{always}"
     );
 }
 

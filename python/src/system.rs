@@ -20,8 +20,8 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
-    Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING, MAX_ITERATIONS_CEILING_TEXT,
-    Newton, NewtonParams, NewtonStats, SubstepPolicy,
+    DEFINITE_SHIFT_RATIO, Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING,
+    MAX_ITERATIONS_CEILING_TEXT, Newton, NewtonParams, NewtonStats, SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, continued_start_all, mean_edge_length, minimize_continued_all,
@@ -576,12 +576,13 @@ struct PyNewtonOptions<'a> {
     relative_step_tolerance: f64,
     remember_shift: bool,
     geodesic_acceleration: bool,
+    definite_shift_ratio: f64,
 }
 
 /// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name,
 /// [`NewtonParams::extrapolate`], the unit-free stopping tests (the step test against the rest mesh's mean
-/// edge length, as the CLI does), [`NewtonParams::remember_shift`] and
-/// [`NewtonParams::geodesic_acceleration`].
+/// edge length, as the CLI does), [`NewtonParams::remember_shift`],
+/// [`NewtonParams::geodesic_acceleration`] and [`NewtonParams::definite_shift_ratio`].
 fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParams> {
     if !(1..=MAX_ITERATIONS_CEILING).contains(&o.max_iterations) {
         return Err(value_error(format!(
@@ -607,6 +608,12 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
             )));
         }
     }
+    if o.definite_shift_ratio.is_nan() || o.definite_shift_ratio < 0.0 {
+        return Err(value_error(format!(
+            "definite_shift_ratio must be ≥ 0 (inf: never), got {}",
+            o.definite_shift_ratio
+        )));
+    }
     let globalization = Globalization::from_name(o.globalization).ok_or_else(|| {
         value_error(format!(
             "globalization must be \"shifted-exact\" or \"project-on-demand\", got {:?}",
@@ -623,6 +630,7 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
         length_scale: mean_edge_length(rest),
         remember_shift: o.remember_shift,
         geodesic_acceleration: o.geodesic_acceleration,
+        definite_shift_ratio: o.definite_shift_ratio,
         ..NewtonParams::default()
     })
 }
@@ -661,6 +669,8 @@ pub fn solve_static<'py>(
             relative_step_tolerance,
             remember_shift,
             geodesic_acceleration,
+            // Statics have no inertia: the ratio does not apply.
+            definite_shift_ratio: DEFINITE_SHIFT_RATIO,
         },
         &system.rest,
     )?;
@@ -786,9 +796,10 @@ impl PyStepper {
 impl PyStepper {
     /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
     /// `density`; the system's current terms and pins are copied. `globalization`, `extrapolate`, the
-    /// relative tolerances, `remember_shift` and `geodesic_acceleration` as in `solve_static`.
+    /// relative tolerances, `remember_shift` and `geodesic_acceleration` as in `solve_static`;
+    /// `definite_shift_ratio` ([`NewtonParams::definite_shift_ratio`], ≥ 0, `inf`: never).
     #[new]
-    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true))]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true, definite_shift_ratio=DEFINITE_SHIFT_RATIO))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -805,6 +816,7 @@ impl PyStepper {
         relative_step_tolerance: f64,
         remember_shift: bool,
         geodesic_acceleration: bool,
+        definite_shift_ratio: f64,
     ) -> PyResult<Self> {
         let x = system.positions(&x0)?;
         let v = match v0 {
@@ -827,6 +839,7 @@ impl PyStepper {
                 relative_step_tolerance,
                 remember_shift,
                 geodesic_acceleration,
+                definite_shift_ratio,
             },
             &system.rest,
         )?;
@@ -1181,6 +1194,7 @@ pub fn fit<'py>(
             relative_step_tolerance: 0.0,
             remember_shift: true,
             geodesic_acceleration: true,
+            definite_shift_ratio: DEFINITE_SHIFT_RATIO,
         },
         &rest,
     )?;

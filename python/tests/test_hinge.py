@@ -559,6 +559,18 @@ def test_unit_free_stopping_tests_shift_memory_and_acceleration_from_python():
             hinge.solve_static(s, X0, **bad)
         with pytest.raises(ValueError):
             hinge.ImplicitEuler(s, V, 0.01, 0.1, **bad)
+    # definite_shift_ratio (the stepper's only): 0 turns every shifted iteration to the definite Hessian,
+    # inf never does; both converge.
+    definite = {}
+    for ratio in (0.0, float("inf")):
+        t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, gradient_tolerance=1e-9, definite_shift_ratio=ratio)
+        steps = [t.step() for _ in range(2)]
+        assert all(st["final_gradient_norm"] <= 1e-9 for _, st in steps)
+        definite[ratio] = sum(st["definite_iterations"] for _, st in steps)
+    assert definite[float("inf")] == 0 and definite[0.0] > 0, definite
+    for bad in (-1.0, float("nan"), "1", True):
+        with pytest.raises(ValueError):
+            hinge.ImplicitEuler(s, V, 0.01, 0.1, definite_shift_ratio=bad)
 
 
 def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations():

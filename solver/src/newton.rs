@@ -17,6 +17,28 @@
 //!   1 230 → 1 169 iterations, 3 259 → 2 714 factorizations, per frame median 11 → 11, max 71 → 61.
 //!   Starting at 1/16 of the remembered shift instead: drape 729 / 1 181, shell-drop 1 339 / 3 301
 //!   (max 77); at 1/64: 733 / 1 235 and 1 387 / 3 523.
+//!
+//!   In a time step, a shift far above the inertia switches the iteration to the definite Hessian: when the
+//!   shift the ladder accepts exceeds [`NewtonParams::definite_shift_ratio`] (default
+//!   [`DEFINITE_SHIFT_RATIO`], 1 000) times the largest `m/Δt²` of a free vertex, the iteration solves with
+//!   each energy's definite Hessian instead (the ladder on it if that fails too), and so do the following
+//!   ones until a full step, as [`Globalization::ProjectOnDemand`] does. A shift `σ` scales every soft
+//!   mode's step by about `m/(Δt² σ)`: a few stiff elements whose negative curvature needs 10³–10⁸ times the
+//!   inertia (the public `cow` mesh as a soft shell: a hinge next to a sliver, folded to −3.09 rad at rest,
+//!   where tan bending is 2.7·10⁶ times stiffer than flat) make the whole shell crawl, hundreds of
+//!   iterations per frame; the definite Hessian keeps each element's own curvature. Measured (`hinge run`
+//!   of the scenes, `docs/newton/ensemble.sh` or five OBJ starts 0–3e-5 m apart; iterations /
+//!   factorizations, per-frame median / max, each the median over the five starts; ratio ∞ is the shift
+//!   alone): `cow` (one run) ∞: 6 432 / 18 304, 9.5 / 1 120, 72 substeps; 10⁵: 2 222 / 5 716, 10 / 590;
+//!   10⁴: 1 585 / 3 782, 8 / 635; 10³: 1 193 / 2 397, 8 / 245, no substeps; 10²: 1 252 / 2 342, 7 / 384; 10: 948 / 1 933,
+//!   10 / 74 (`project-on-demand`: 1 100 / 1 454, 9 / 86). `shell-drop` ∞: 1 217 / 3 021, 11.5 / 70;
+//!   10³: 961 / 2 176, 12 / 57; 10: 917 / 2 147, 13 / 48; 1: 905 / 1 998, 11.5 / 52. The drape: 612–617
+//!   iterations at 10³ and ∞ (no shift that large), 542–546 at 10, 546–552 at 1, 688–1 080 at 10². A
+//!   generated torus: ∞ 1 138 / 2 878, 5.5 / 89; 10³ 1 107 / 2 751, 5.5 / 76; 1: 979 / 2 225, 9.5 / 94. A
+//!   box with 90° creases: ∞ 1 130 / 2 727, 11 / 65; 10³ 1 033 / 2 324, 10 / 56; 1: 1 133 / 2 363,
+//!   15 / 56. Small ratios cost the torus and the box their per-frame medians (the definite Hessian drops
+//!   the curvature a folding shell needs, as project on demand does); 10³ lowers every scene's total and
+//!   maximum and leaves its median within its spread.
 //! - [`Globalization::ProjectOnDemand`]: the exact Hessian when it factors; after a failure, each energy's
 //!   positive semi-definite Hessian ([`Request::definite`]: Gauss–Newton for hinge terms, the membrane's
 //!   stress clamped to its positive part in the geometric stiffness, the compressive spring term and the
@@ -262,6 +284,12 @@ pub struct NewtonParams {
     /// `x + d + a/2`, with `(H + σ) a = −∇³F[d, d]` from one extra gradient evaluation, before the plain
     /// line search along `d` (module documentation, Geodesic acceleration).
     pub geodesic_acceleration: bool,
+    /// With [`Globalization::ShiftedExact`] in a time step: when the diagonal shift an iteration's ladder
+    /// needs exceeds this many times the largest inertia term `m/Δt²` of a free vertex, the iteration takes
+    /// each energy's definite Hessian instead, and so do the following ones until a full step, as
+    /// [`Globalization::ProjectOnDemand`] does (module documentation, Globalization). `f64::INFINITY`:
+    /// never (the shift alone). Statics are unaffected (no inertia).
+    pub definite_shift_ratio: f64,
 }
 
 /// How Newton handles a Hessian that is not positive definite (see the module documentation).
@@ -330,9 +358,13 @@ impl Default for NewtonParams {
             extrapolate: true,
             remember_shift: true,
             geodesic_acceleration: true,
+            definite_shift_ratio: DEFINITE_SHIFT_RATIO,
         }
     }
 }
+
+/// The default [`NewtonParams::definite_shift_ratio`] (module documentation, Globalization).
+pub const DEFINITE_SHIFT_RATIO: f64 = 1000.0;
 
 /// Iterations the per-solve histories ([`NewtonStats::gradient_norms`], [`NewtonStats::step_norms`]) have
 /// room for before they grow: `max_iterations` can be anything a scene file says (`4294967296` once
@@ -775,6 +807,30 @@ impl Newton {
         self.stage = stage;
     }
 
+    /// The shift above which an iteration of [`Globalization::ShiftedExact`] switches to the definite
+    /// Hessian: [`NewtonParams::definite_shift_ratio`] times the largest `m/Δt²` of a free vertex; ∞
+    /// without inertia (statics), for the other globalization, or when no free vertex has mass.
+    fn definite_above(&self, params: &NewtonParams, inertia: Option<&Inertia>) -> f64 {
+        let Some(i) = inertia else {
+            return f64::INFINITY;
+        };
+        if params.globalization != Globalization::ShiftedExact {
+            return f64::INFINITY;
+        }
+        let mass = self
+            .reduced
+            .dofs
+            .iter()
+            .map(|&d| i.masses[d / 3])
+            .fold(0.0, f64::max);
+        let above = params.definite_shift_ratio * mass / (i.dt * i.dt);
+        if mass > 0.0 && above.is_finite() {
+            above
+        } else {
+            f64::INFINITY
+        }
+    }
+
     /// Minimises the objective (plus `inertia` when given) starting from `x`, with pinned vertices held at
     /// their values in `x`. On success `x` holds the minimiser; on failure `x` is unchanged, and so is the
     /// remembered shift ([`NewtonParams::remember_shift`]).
@@ -829,6 +885,7 @@ impl Newton {
             stats: &mut stats,
             out: &mut out,
             magnitude: 0.0,
+            definite_above: self.definite_above(&params, inertia),
         };
         let hint = self.ladder_hint;
         let mut result = self.iterate(&mut solve, &mut w);
@@ -1075,6 +1132,17 @@ impl Newton {
             s.stats.factor_seconds += t.elapsed().as_secs_f64();
             s.stats.factorizations += 1;
             match r {
+                // A shift far above the inertia's curvature: the shifted step would be nearly a gradient
+                // step; the definite Hessian keeps each element's own curvature instead.
+                Ok(()) if !definite && *shift > damping && *shift > s.definite_above => {
+                    if p.remember_shift {
+                        self.ladder_hint = *shift;
+                    }
+                    definite = true;
+                    *shift = damping;
+                    s.eval(y, DEFINITE_HESSIAN)?;
+                    self.assemble(s);
+                }
                 Ok(()) => {
                     // Remember shifts the ladder found, not a Levenberg–Marquardt damping (which can be
                     // orders of magnitude larger, for one iteration's line search).
@@ -1313,6 +1381,9 @@ struct Solve<'a, O> {
     /// The scale of F's rounding at the last evaluated point: `Σ |term energy| + inertia energy` (at least
     /// |F|; Rounding).
     magnitude: f64,
+    /// A ladder shift above this switches the iteration to the definite Hessian
+    /// ([`NewtonParams::definite_shift_ratio`] times the largest free inertia diagonal entry; ∞: never).
+    definite_above: f64,
 }
 
 impl<O: Objective> Solve<'_, O> {

@@ -1078,6 +1078,73 @@ fn both_globalizations_reach_the_same_equilibrium() {
     );
 }
 
+/// [`NewtonParams::definite_shift_ratio`]: in a time step, an iteration whose diagonal shift would exceed
+/// the ratio times the largest free `m/Δt²` takes each energy's definite Hessian instead. Measured against
+/// the solve that never switches: a ratio just above what its largest shift needs changes nothing
+/// (bitwise), one just below it switches, and the solve still converges; without inertia (statics) the
+/// ratio plays no part.
+#[test]
+fn a_shift_far_above_the_inertia_switches_to_the_definite_hessian() {
+    let (mut sys, pins, start) = compressed_clamped_sheet();
+    let n = start.len();
+    // Light vertices and a long step: the inertia term (1e-5 N/m) is far below the curvature the
+    // compressed start's shifts make up for.
+    let (mass, dt) = (1e-7, 0.1);
+    let inertia = Inertia {
+        masses: vec![mass; n],
+        x_hat: start.clone(),
+        dt,
+    };
+    let top = mass / (dt * dt);
+    let mut solve = |ratio: f64, inertia: Option<&Inertia>| {
+        let params = NewtonParams {
+            gradient_tolerance: 1e-9,
+            max_iterations: 500,
+            definite_shift_ratio: ratio,
+            ..NewtonParams::default()
+        };
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let mut x = start.clone();
+        let stats = newton.minimize(&mut sys, &mut x, inertia).unwrap();
+        assert!(stats.gradient_norms.last().unwrap() <= &1e-9);
+        (x, stats)
+    };
+    let (x_never, never) = solve(f64::INFINITY, Some(&inertia));
+    assert_eq!(never.definite_iterations, 0);
+    assert!(
+        never.max_shift > 10.0 * top,
+        "no shift far above the inertia ({:e} against {top:e}): no test",
+        never.max_shift
+    );
+    let needed = never.max_shift / top;
+    let (x_above, above) = solve(1.01 * needed, Some(&inertia));
+    assert_eq!(above.definite_iterations, 0);
+    assert_eq!(x_above, x_never);
+    assert_eq!(above.iterations, never.iterations);
+    assert_eq!(above.factorizations, never.factorizations);
+    let (_, below) = solve(0.99 * needed, Some(&inertia));
+    println!(
+        "never: {} iterations / {} factorizations (largest shift {:.3e} = {needed:.3e} m/dt²); \
+         ratio 0.99 of that: {} / {}, {} definite",
+        never.iterations,
+        never.factorizations,
+        never.max_shift,
+        below.iterations,
+        below.factorizations,
+        below.definite_iterations
+    );
+    assert!(below.definite_iterations > 0, "no switch below the ratio");
+    // Statics: no inertia, no switch whatever the ratio.
+    let (x0, s0) = solve(0.0, None);
+    let (x1, s1) = solve(f64::INFINITY, None);
+    assert!(
+        s0.max_shift > 0.0,
+        "the static solve never shifted: no test"
+    );
+    assert_eq!(s0.definite_iterations, 0);
+    assert_eq!((x0, s0.iterations), (x1, s1.iterations));
+}
+
 #[test]
 fn unit_free_stopping_tests() {
     let p = NewtonParams {

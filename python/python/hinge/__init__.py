@@ -541,11 +541,15 @@ class ImplicitEuler:
     ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance``, ``remember_shift`` and
     ``geodesic_acceleration`` as in
     ``solve_static`` (the relative gradient test is against the gradient at the step's start, the inertial
-    prediction)."""
+    prediction). ``definite_shift_ratio`` (the scene key ``solver.definite_shift_ratio``, >= 0, default 1):
+    with ``"shifted-exact"``, an iteration whose diagonal shift would exceed this many times the largest
+    inertia term m/dt² of a vertex takes each energy's definite Hessian instead, until a full step;
+    ``float("inf")`` never does (the shift alone)."""
 
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
-                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True):
+                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True,
+                 definite_shift_ratio=1000.0):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), _number("dt", dt), _number("density", density), V0,
                                        _count("max_iterations", max_iterations),
@@ -554,7 +558,8 @@ class ImplicitEuler:
                                        _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
                                        _tolerance("relative_step_tolerance", relative_step_tolerance),
                                        _flag("remember_shift", remember_shift),
-                                       _flag("geodesic_acceleration", geodesic_acceleration))
+                                       _flag("geodesic_acceleration", geodesic_acceleration),
+                                       _number("definite_shift_ratio", definite_shift_ratio))
 
     def step(self):
         return self._t.step()
