@@ -11,7 +11,7 @@ use std::sync::Arc;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::bending::scatter::{Orient, add_block_values};
-use crate::bending::{BendingModel, Method, Parallelism, Request, Scratch};
+use crate::bending::{BendingModel, HessianMode, Method, Parallelism, Request, Scratch};
 use crate::error::{ElementRef, EvalError};
 use crate::mesh::check_same_vertex_count;
 use crate::pattern::SymmetricPattern;
@@ -160,6 +160,14 @@ pub trait Energy: Send + Sync {
     fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
         let _ = (from, to);
         1.0
+    }
+
+    /// Whether the Hessian this term assembles for a plain (not [`Request::definite`]) request is its
+    /// energy's exact second derivative: false for a hinge term in Gauss–Newton or projected mode
+    /// ([`HessianMode`]). Newton judges convergence by a step's length only after a full step of an exact
+    /// Hessian. Default: true.
+    fn hessian_is_exact(&self) -> bool {
+        true
     }
 
     /// Moves vertices of `x` (positions at time `from_time`) the way a moving part of this energy moved
@@ -480,6 +488,10 @@ where
 
     fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
         self.model.bind(Arc::clone(pattern))
+    }
+
+    fn hessian_is_exact(&self) -> bool {
+        self.model.hessian_mode() == HessianMode::Exact
     }
 
     fn add_to(
@@ -906,6 +918,11 @@ impl System {
             .iter()
             .map(|t| t.max_step(from, to))
             .fold(1.0, f64::min)
+    }
+
+    /// Whether every term's Hessian is exact ([`Energy::hessian_is_exact`]).
+    pub fn hessian_is_exact(&self) -> bool {
+        self.terms.iter().all(|t| t.hessian_is_exact())
     }
 
     /// [`Energy::carry`] of every term in turn; whether any moved a vertex (nothing for a slice of the

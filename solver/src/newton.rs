@@ -125,7 +125,11 @@
 //! make measurable progress, as for stiff strips whose gradient floors at rounding); a shifted or definite
 //! direction predicts a small decrease because of its shift, not because F is at its floor. A diagonal
 //! shift, a Levenberg–Marquardt retry or the line search shortens steps far from a solution too: before this
-//! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. In a time
+//! rule, a shifted and halved step of 1e-9 m ended a step of the 81×81 drape with ‖∇F‖ = 287. A system
+//! with a term whose Hessian is not exact ([`Objective::hessian_is_exact`]: a hinge term in Gauss–Newton
+//! or projected mode) has no exact Newton direction, so its step tests never count: with the `cow`'s
+//! bending projected per hinge, a full step of 1e-9 m ended a time step at ‖∇F‖ = 0.19 N before this rule
+//! (its gradient tests and the stall rule end such solves). In a time
 //! step ([`ImplicitEuler`]) a solve that a step test ends above the gradient tests and above √ε times its
 //! start's gradient, with a last step that moves no coordinate by more than a few units in the last place,
 //! is [`SolverError::Stuck`] and the step is retried with substeps: such an iterate cannot move (a
@@ -197,6 +201,12 @@ pub trait Objective {
         let _ = (from, to);
         1.0
     }
+
+    /// Whether [`Objective::evaluate`]'s Hessian is the energy's exact second derivative (the step tests
+    /// count only after full steps of an exact Hessian; module documentation, Stopping). Default: true.
+    fn hessian_is_exact(&self) -> bool {
+        true
+    }
 }
 
 impl Objective for System {
@@ -218,6 +228,9 @@ impl Objective for System {
     }
     fn max_step(&self, from: &[Vector3<f64>], to: &[Vector3<f64>]) -> f64 {
         System::max_step(self, from, to)
+    }
+    fn hessian_is_exact(&self) -> bool {
+        System::hessian_is_exact(self)
     }
 }
 
@@ -973,7 +986,9 @@ impl Newton {
             if accelerated {
                 s.stats.accelerated_iterations += 1;
             }
-            let tests = StepTests::new(definite, shift, alpha, dot(&w.g, &w.d).abs(), noise);
+            // A Gauss–Newton or projected term makes no direction an exact Newton one.
+            let exact = !definite && s.objective.hessian_is_exact();
+            let tests = StepTests::new(!exact, shift, alpha, dot(&w.g, &w.d).abs(), noise);
             let Some(acceptance) = accepted else {
                 return Err(SolverError::LineSearch {
                     stats: Box::new(s.stats.clone()),
@@ -1450,8 +1465,8 @@ struct StepTests {
 }
 
 impl StepTests {
-    /// The tests of a step of length `alpha` along a direction factored with `shift` (or the definite
-    /// Hessian), whose predicted decrease is `predicted` = |∇F · d|; `noise` is F's rounding allowance.
+    /// The tests of a step of length `alpha` along a direction factored with `shift` (or a Hessian that is
+    /// not exact: the definite one, or a term's Gauss–Newton or projected one), whose predicted decrease is `predicted` = |∇F · d|; `noise` is F's rounding allowance.
     fn new(definite: bool, shift: f64, alpha: f64, predicted: f64, noise: f64) -> Self {
         let exact_direction = !definite && shift == 0.0;
         let newton_step = exact_direction && alpha == 1.0;

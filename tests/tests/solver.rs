@@ -993,6 +993,13 @@ fn definite_requests_give_psd_hessians_with_exact_energy_and_gradient() {
 /// numbering, rotated corners) with bending, an StVK membrane and gravity. Returns the system, its pins and
 /// the start.
 fn compressed_clamped_sheet() -> (System, Pins, Vec<Vector3<f64>>) {
+    compressed_clamped_sheet_in(hinge_core::bending::HessianMode::Exact)
+}
+
+/// [`compressed_clamped_sheet`] with its bending term assembling the Hessian `mode`.
+fn compressed_clamped_sheet_in(
+    mode: hinge_core::bending::HessianMode,
+) -> (System, Pins, Vec<Vector3<f64>>) {
     use hinge_energies::membrane::StvkMembrane;
     let rest = hinge_core::shapes::irregular_sheet(7, 7, 4).unwrap();
     let n = rest.n_vertices();
@@ -1003,12 +1010,10 @@ fn compressed_clamped_sheet() -> (System, Pins, Vec<Vector3<f64>>) {
         .iter()
         .map(|p| Vector3::new(0.9 * p.x, p.y, 0.05 * (4.0 * p.y).sin() * p.x))
         .collect();
+    let mut bending = BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap();
+    bending.set_hessian_mode(mode).unwrap();
     let terms: Vec<Box<dyn Energy>> = vec![
-        Box::new(HingeTerm::new(
-            "bending",
-            BendingModel::new(&rest, DiscreteShells { k: 1e-3 }).unwrap(),
-            Method::Refactored,
-        )),
+        Box::new(HingeTerm::new("bending", bending, Method::Refactored)),
         Box::new(StvkMembrane::new(&rest, 1e3, 0.3, 1e-3).unwrap()),
         Box::new(Gravity::new(lumped_masses(&rest, 0.1), Vector3::new(0.0, 0.0, -9.81)).unwrap()),
     ];
@@ -1143,6 +1148,50 @@ fn a_shift_far_above_the_inertia_switches_to_the_definite_hessian() {
     );
     assert_eq!(s0.definite_iterations, 0);
     assert_eq!((x0, s0.iterations), (x1, s1.iterations));
+}
+
+/// A step test counts only after a full step of an exact Hessian: with the bending term in Gauss–Newton or
+/// projected mode no direction is an exact Newton one, so a loose step tolerance does not end the solve
+/// (its gradient test does), where the exact Hessian's full steps end it early; the same equilibrium.
+#[test]
+fn a_step_test_never_ends_a_solve_whose_hessian_is_not_exact() {
+    use hinge_core::bending::HessianMode;
+    let mut ends = Vec::new();
+    for mode in HessianMode::ALL {
+        let (mut sys, pins, start) = compressed_clamped_sheet_in(mode);
+        assert_eq!(sys.hessian_is_exact(), mode == HessianMode::Exact);
+        let params = NewtonParams {
+            gradient_tolerance: 1e-9,
+            // Loose (the sheet is 1 m across): full steps of every mode fall below it while ‖∇F‖ is far
+            // above 1e-9 (exact: a 1.3e-2 m step at 7e-3 N; Gauss–Newton 5.4e-2 m at 1.4e-2 N).
+            step_tolerance: 0.1,
+            max_iterations: 2000,
+            ..NewtonParams::default()
+        };
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let mut x = start;
+        let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+        let last = *stats.gradient_norms.last().unwrap();
+        println!(
+            "{mode:?}: {} iterations, final gradient {last:e}",
+            stats.iterations
+        );
+        if mode == HessianMode::Exact {
+            assert!(
+                last > 1e-9,
+                "the step test never ended the exact solve: no test"
+            );
+        } else {
+            assert!(last <= 1e-9, "{mode:?}: a step test ended it at {last:e}");
+        }
+        ends.push(x);
+    }
+    let d = ends[1]
+        .iter()
+        .zip(&ends[2])
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(d <= 1e-6, "different equilibria: {d:e}");
 }
 
 #[test]
