@@ -463,7 +463,7 @@ pub struct SolverSpec {
     pub geodesic_acceleration: bool,
     /// `shifted-exact` in a time step: when an iteration's diagonal shift exceeds this many times the
     /// largest inertia term m/Δt² of a vertex, it takes the definite Hessian instead, until a full step
-    /// (non-negative; `inf`: never; default 1; see
+    /// (non-negative; `inf`: never; default 1000; see
     /// `hinge_solver::newton::NewtonParams::definite_shift_ratio`).
     #[serde(default = "default_definite_shift_ratio")]
     pub definite_shift_ratio: f64,
