@@ -84,6 +84,14 @@ impl Checkpoint {
         s
     }
 
+    /// An upper bound on the size in bytes of [`Checkpoint::to_text`] for `n_vertices` vertices,
+    /// `plastic_hinges` hinges with a plastic state and a scene named `scene`: every number takes at most
+    /// 24 characters (a sign, 17 significant digits, a point and a three-digit exponent), so a vertex line
+    /// 150 bytes and a hinge line 50, and the header lines at most 256 beside the scene's name.
+    pub fn max_bytes(n_vertices: usize, plastic_hinges: usize, scene: &str) -> u64 {
+        256 + scene.len() as u64 + 150 * n_vertices as u64 + 50 * plastic_hinges as u64
+    }
+
     /// Writes the file (to a temporary file beside it, then renamed: a run stopped while writing leaves
     /// the previous checkpoint or none, never half of one).
     ///
@@ -241,6 +249,35 @@ fn shorten(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`Checkpoint::max_bytes`] bounds the text of the longest numbers there are (negative, 17
+    /// significant digits, three-digit negative exponents) and of the largest counts, and is within a few
+    /// bytes per line of it.
+    #[test]
+    fn the_size_bound_holds_for_the_longest_numbers() {
+        let long = -2.2250738585072014e-308_f64;
+        let longest = |n: usize| vec![Vector3::new(long, long, long); n];
+        for (n, h) in [(0, 0), (1, 0), (3, 5), (1000, 2900)] {
+            let c = Checkpoint {
+                scene: "a scene".into(),
+                frame: usize::MAX,
+                time: long,
+                dt: long,
+                shift_memory: long,
+                positions: longest(n),
+                velocities: longest(n),
+                plastic: (h > 0).then(|| (vec![long; h], vec![long; h])),
+            };
+            assert_eq!(format!("{long:e}").len(), 24);
+            let len = c.to_text().len() as u64;
+            let bound = Checkpoint::max_bytes(n, h, &c.scene);
+            assert!(len <= bound, "{n} vertices, {h} hinges: {len} > {bound}");
+            assert!(
+                bound - len <= 256,
+                "{n} vertices, {h} hinges: {len} ≪ {bound}"
+            );
+        }
+    }
 
     fn sample(plastic: bool) -> Checkpoint {
         // Numbers whose shortest forms are long, tiny, huge, negative zero and subnormal.

@@ -1947,13 +1947,22 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
         .clone()
         .unwrap_or_else(|| PathBuf::from("out").join(&scene.name));
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
+    // What the run writes: frame files (and, with plasticity, a rest-angle file per frame of at most 26
+    // bytes per hinge, `{:.17e}` and a newline; hinges ≤ 3/2 of the triangles), obstacle frames, and for
+    // a time-stepped run its checkpoint, twice while a new one replaces the old.
+    let plastic_hinges = if scene.bending.plasticity.is_some() {
+        (3 * rest.n_triangles()).div_ceil(2)
+    } else {
+        0
+    };
+    let mut bytes = 0_u64;
+    let mut parts = Vec::new();
     if !args.no_frames {
         let files = if args.statics { 1 } else { scene.frames + 1 };
-        let mut bytes = (files as u64).saturating_mul(crate::limits::frame_bytes(
-            format,
-            rest.n_vertices(),
-            rest.n_triangles(),
-        ));
+        bytes = (files as u64).saturating_mul(
+            crate::limits::frame_bytes(format, rest.n_vertices(), rest.n_triangles())
+                .saturating_add(26 * plastic_hinges as u64),
+        );
         if !args.statics && scene.obstacles.iter().any(|o| o.motion.is_some()) {
             // `obstacles_k.obj` beside every frame.
             let (nv, nt) = scene.obstacles.iter().fold((0, 0), |(nv, nt), o| {
@@ -1964,7 +1973,16 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
                 (files as u64).saturating_mul(crate::limits::obj_frame_bytes(nv, nt)),
             );
         }
-        crate::limits::disk_space(&out, bytes, &format!("{files} frame files"))?;
+        parts.push(format!("{files} frame files"));
+    }
+    if !args.statics {
+        bytes = bytes.saturating_add(
+            2 * Checkpoint::max_bytes(rest.n_vertices(), plastic_hinges, &scene.name),
+        );
+        parts.push("a checkpoint and its replacement".to_string());
+    }
+    if bytes > 0 {
+        crate::limits::disk_space(&out, bytes, &parts.join(" and "))?;
     }
     install_interrupt_handler();
     INTERRUPTED.store(false, Ordering::SeqCst);
