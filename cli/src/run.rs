@@ -13,7 +13,7 @@ use std::time::Instant;
 use clap::Args;
 use hinge_core::TriMesh;
 use hinge_core::anisotropy::Anisotropic;
-use hinge_core::bending::{BendingModel, Method};
+use hinge_core::bending::{BendingModel, HessianMode, Method};
 use hinge_core::energy::Plasticity;
 use hinge_core::energy::{Energy, HingeTerm, System};
 use hinge_core::error::{ElementNames, Num};
@@ -324,6 +324,8 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             yield_angle: p.yield_angle,
             hardening: p.hardening,
         }),
+        hessian: HessianMode::from_name(&scene.bending.hessian)
+            .ok_or_else(|| format!("bending.hessian: unknown `{}`", scene.bending.hessian))?,
     };
     let (bending, stiff_rest) = match scene.bending.energy.as_str() {
         "custom" => match scene.custom_psi(k)? {
@@ -759,6 +761,8 @@ struct HingeOptions<'a> {
     anisotropy: Option<&'a [f64]>,
     rest_angles: Option<&'a [f64]>,
     plasticity: Option<Plasticity>,
+    /// `bending.hessian`.
+    hessian: HessianMode,
 }
 
 /// A scene's bending term, with its stiff rest hinges ([`StiffRest`]).
@@ -814,6 +818,9 @@ where
                 .set_rest_angles(t)
                 .map_err(|e| format!("bending.rest_angles: {e}"))?;
         }
+        model
+            .set_hessian_mode(o.hessian)
+            .map_err(|e| format!("bending.hessian: {e}"))?;
         let stiff = StiffRest::of(&model);
         let term = HingeTerm::new("bending", model, Method::Refactored);
         let term: Box<dyn Energy> = Box::new(match o.plasticity {

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use hinge_core::TriMesh;
 use hinge_core::anisotropy::TriangleUv;
+use hinge_core::bending::HessianMode;
 use hinge_core::error::Num;
 use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
@@ -192,6 +193,12 @@ pub struct BendingSpec {
     /// `hinge_energies::bending::plate_consistent_stiffness`).
     #[serde(default = "default_calibration")]
     pub calibration: String,
+    /// The Hessian the bending term assembles (`hinge_core::bending::HessianMode`): `exact` (default),
+    /// `gauss-newton` (max(ψ″, 0) ∇θ∇θᵀ) or `projected` (each hinge's 12×12 block projected onto the
+    /// positive semi-definite cone). Energy and forces are exact in every mode; Newton on a Hessian that
+    /// is not exact converges linearly.
+    #[serde(default = "default_hessian")]
+    pub hessian: String,
     /// Warp/weft anisotropy (none: isotropic).
     #[serde(default)]
     pub anisotropy: Option<AnisotropySpec>,
@@ -260,6 +267,10 @@ fn default_calibration() -> String {
     "eq11".into()
 }
 
+fn default_hessian() -> String {
+    HessianMode::Exact.name().into()
+}
+
 impl Default for BendingSpec {
     fn default() -> Self {
         Self {
@@ -268,6 +279,7 @@ impl Default for BendingSpec {
             params: Default::default(),
             damping: 0.0,
             calibration: default_calibration(),
+            hessian: default_hessian(),
             anisotropy: None,
             plasticity: None,
             rest_angles: None,
@@ -822,6 +834,13 @@ impl Scene {
             return Err(format!(
                 "bending.calibration: unknown `{}` (eq11, plate)",
                 self.bending.calibration
+            ));
+        }
+        if HessianMode::from_name(&self.bending.hessian).is_none() {
+            return Err(format!(
+                "bending.hessian: unknown `{}` ({})",
+                self.bending.hessian,
+                HessianMode::ALL.map(HessianMode::name).join(", ")
             ));
         }
         if let Some(levels) = &self.mesh.resolutions {

@@ -667,6 +667,10 @@ fn energies(py: Python<'_>) -> PyResult<Vec<(String, String, Py<PyDict>)>> {
 
 #[pymodule]
 fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add(
+        "DEFINITE_SHIFT_RATIO",
+        hinge_solver::newton::DEFINITE_SHIFT_RATIO,
+    )?;
     m.add_class::<Model>()?;
     m.add_class::<system::PySystem>()?;
     m.add_class::<system::PyStepper>()?;

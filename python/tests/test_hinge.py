@@ -1,6 +1,7 @@
 """The Python face of hinge: derivatives against finite differences, methods and ψ strings against each
 other, numpy dtypes and layouts, per-hinge parameters, threads, the GIL, and ValueError for bad input."""
 
+import inspect
 import re
 import threading
 import time
@@ -571,6 +572,10 @@ def test_unit_free_stopping_tests_shift_memory_and_acceleration_from_python():
     for bad in (-1.0, float("nan"), "1", True):
         with pytest.raises(ValueError):
             hinge.ImplicitEuler(s, V, 0.01, 0.1, definite_shift_ratio=bad)
+    # The default is the Rust constant (exported, not repeated), 1000 as the docstring says.
+    default = inspect.signature(hinge.ImplicitEuler).parameters["definite_shift_ratio"].default
+    assert default is hinge.DEFINITE_SHIFT_RATIO and default == 1000.0
+    assert "DEFINITE_SHIFT_RATIO`` = 1000" in hinge.ImplicitEuler.__doc__
 
 
 def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations():

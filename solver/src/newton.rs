@@ -84,7 +84,14 @@
 //! shifted one is then extrapolated as usual, along `α d + α²/2 a`); otherwise the plain line search
 //! along `d` runs, from the full step. Definite directions ([`Globalization::ProjectOnDemand`]) are not
 //! corrected: `H d` is not known for them, and a correction from central differences of the gradient
-//! measured worse (drape 611–620 iterations against 570–577). Every corrected step counts in
+//! measured worse (drape 611–620 iterations against 570–577). Nor are the directions of a system with a
+//! term whose Hessian is not exact ([`Objective::hessian_is_exact`]: a hinge term in Gauss–Newton or
+//! projected mode): there the factored `M` is not `H`, the difference quotient holds `2 (H − M) d / h`
+//! besides the third-derivative term, and the step `a/2` it gives is `1/h` = 10 times the quasi-Newton
+//! correction `−M⁻¹ (H − M) d`. Measured on the
+//! drape's five starts with its bending in Gauss–Newton mode (`bending.hessian = "gauss-newton"`),
+//! corrected → not: 830–1 072 (median 1 016 / 1 853) → 762–774 (772 / 1 212); projected: 912–1 059
+//! (939 / 1 508) → 762–777 (767 / 1 169). Every corrected step counts in
 //! [`NewtonStats::accelerated_iterations`].
 //!
 //! Measured over `docs/newton/ensemble.sh`'s five starts (`iterations / factorizations` of the median
@@ -891,6 +898,7 @@ impl Newton {
         w.cur.extend_from_slice(x);
         w.trial.clear();
         w.trial.extend_from_slice(x);
+        let hessian_exact = objective.hessian_is_exact();
         let mut solve = Solve {
             objective,
             inertia,
@@ -899,6 +907,7 @@ impl Newton {
             out: &mut out,
             magnitude: 0.0,
             definite_above: self.definite_above(&params, inertia),
+            hessian_exact,
         };
         let hint = self.ladder_hint;
         let mut result = self.iterate(&mut solve, &mut w);
@@ -987,7 +996,7 @@ impl Newton {
                 s.stats.accelerated_iterations += 1;
             }
             // A Gauss–Newton or projected term makes no direction an exact Newton one.
-            let exact = !definite && s.objective.hessian_is_exact();
+            let exact = !definite && s.hessian_exact;
             let tests = StepTests::new(!exact, shift, alpha, dot(&w.g, &w.d).abs(), noise);
             let Some(acceptance) = accepted else {
                 return Err(SolverError::LineSearch {
@@ -1064,7 +1073,7 @@ impl Newton {
             w.d.extend(w.g.iter().map(|v| -v));
         }
         w.a.clear();
-        if s.params.geodesic_acceleration && !factored.definite {
+        if s.params.geodesic_acceleration && !factored.definite && s.hessian_exact {
             self.accelerate(s, w, *shift);
         }
         Ok(factored)
@@ -1399,6 +1408,10 @@ struct Solve<'a, O> {
     /// A ladder shift above this switches the iteration to the definite Hessian
     /// ([`NewtonParams::definite_shift_ratio`] times the largest free inertia diagonal entry; ∞: never).
     definite_above: f64,
+    /// [`Objective::hessian_is_exact`], asked once per solve: whether an undamped, unshifted direction that
+    /// is not the definite Hessian's is an exact Newton step (the step tests trust it; geodesic
+    /// acceleration corrects only exact and shifted directions of the exact Hessian).
+    hessian_exact: bool,
 }
 
 impl<O: Objective> Solve<'_, O> {

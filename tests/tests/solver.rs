@@ -1152,7 +1152,8 @@ fn a_shift_far_above_the_inertia_switches_to_the_definite_hessian() {
 
 /// A step test counts only after a full step of an exact Hessian: with the bending term in Gauss–Newton or
 /// projected mode no direction is an exact Newton one, so a loose step tolerance does not end the solve
-/// (its gradient test does), where the exact Hessian's full steps end it early; the same equilibrium.
+/// (its gradient test does), where the exact Hessian's full steps end it early; the same equilibrium. Nor
+/// is any of their steps corrected by geodesic acceleration, where the exact solve's are.
 #[test]
 fn a_step_test_never_ends_a_solve_whose_hessian_is_not_exact() {
     use hinge_core::bending::HessianMode;
@@ -1181,8 +1182,14 @@ fn a_step_test_never_ends_a_solve_whose_hessian_is_not_exact() {
                 last > 1e-9,
                 "the step test never ended the exact solve: no test"
             );
+            assert!(
+                stats.accelerated_iterations > 0,
+                "no corrected step: no test"
+            );
         } else {
             assert!(last <= 1e-9, "{mode:?}: a step test ended it at {last:e}");
+            // Geodesic acceleration's difference quotient needs the exact Hessian.
+            assert_eq!(stats.accelerated_iterations, 0, "{mode:?}");
         }
         ends.push(x);
     }

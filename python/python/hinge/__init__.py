@@ -23,7 +23,10 @@ import scipy.sparse as _sp
 
 from . import _hinge
 
-__all__ = ["BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
+DEFINITE_SHIFT_RATIO = _hinge.DEFINITE_SHIFT_RATIO
+"""The default ``definite_shift_ratio`` of :class:`ImplicitEuler` (Rust ``hinge_solver::newton::DEFINITE_SHIFT_RATIO``)."""
+
+__all__ = ["DEFINITE_SHIFT_RATIO", "BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
            "adjoint_gradient", "fit", "fit_scene", "read_mesh", "write_mesh", "threads"]
 
 
@@ -541,7 +544,8 @@ class ImplicitEuler:
     ``extrapolate``, ``relative_gradient_tolerance``, ``relative_step_tolerance``, ``remember_shift`` and
     ``geodesic_acceleration`` as in
     ``solve_static`` (the relative gradient test is against the gradient at the step's start, the inertial
-    prediction). ``definite_shift_ratio`` (the scene key ``solver.definite_shift_ratio``, >= 0, default 1):
+    prediction). ``definite_shift_ratio`` (the scene key ``solver.definite_shift_ratio``, >= 0, default
+    ``DEFINITE_SHIFT_RATIO`` = 1000, the Rust default):
     with ``"shifted-exact"``, an iteration whose diagonal shift would exceed this many times the largest
     inertia term m/dt² of a vertex takes each energy's definite Hessian instead, until a full step;
     ``float("inf")`` never does (the shift alone)."""
@@ -549,7 +553,7 @@ class ImplicitEuler:
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
                  relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True,
-                 definite_shift_ratio=1000.0):
+                 definite_shift_ratio=_hinge.DEFINITE_SHIFT_RATIO):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), _number("dt", dt), _number("density", density), V0,
                                        _count("max_iterations", max_iterations),
