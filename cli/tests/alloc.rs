@@ -6,7 +6,9 @@
 //! no other test's allocations mix in (the frames are stepped on the calling thread and on rayon's
 //! workers, all counted). Frames whose Newton solves take from 2 to 30 iterations must allocate the same:
 //! what a frame allocates (its start and velocity copies, the solve's histories) does not grow with its
-//! iterations, factorizations or line-search trials. The LU backend (`linear_solver = "faer-lu"`) is
+//! iterations, factorizations or line-search trials — also when every iteration that needs a shift takes
+//! the definite Hessian instead (`definite_shift_ratio = 0`), with the bending term's exact Hessian and
+//! with its per-hinge projection (`bending.hessian = "projected"`). The LU backend (`linear_solver = "faer-lu"`) is
 //! measured on the drape's Hessian made indefinite: it does allocate on every factorization (faer's
 //! supernodal LU sizes its factors from the pivots it picks), about 214 times here against 3 366 for the
 //! first; the test holds it to a tenth of the first.
@@ -58,13 +60,25 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn newton_and_the_lu_backend_allocate_nothing_per_iteration_on_the_drape() {
-    // One test, two phases in turn: the counter is global, so they must not overlap.
-    newton_on_the_drape();
+    // One test, phases in turn: the counter is global, so they must not overlap.
+    newton_on_the_drape("the default", |_| {});
+    // Every iteration that needs a shift takes the definite Hessian instead (each energy's definite
+    // Hessian evaluated at the iterate), with the bending term's exact and its per-hinge projected
+    // Hessian.
+    for hessian in ["exact", "projected"] {
+        newton_on_the_drape(&format!("the definite Hessian, bending {hessian}"), |s| {
+            s.solver.definite_shift_ratio = 0.0;
+            s.bending.hessian = hessian.into();
+        });
+    }
     lu_on_the_drape_s_indefinite_hessian();
 }
 
-fn newton_on_the_drape() {
-    let (scene, _) = hinge_cli::scene::load("drape").unwrap();
+/// Forty frames of the drape (`edit` applied to its scene): from the third frame on, each allocates the
+/// same whatever its Newton iterations.
+fn newton_on_the_drape(what: &str, edit: impl Fn(&mut hinge_cli::scene::Scene)) {
+    let (mut scene, _) = hinge_cli::scene::load("drape").unwrap();
+    edit(&mut scene);
     let rest = scene.rest_mesh(None).unwrap();
     let Built {
         mut system,
@@ -82,12 +96,14 @@ fn newton_on_the_drape() {
     };
     // Per frame: (allocations, Newton iterations, factorizations, line-search trials, substeps).
     let mut frames = Vec::new();
+    let mut definite = 0;
     for _ in 0..40 {
         let before = ALLOCATIONS.load(Ordering::SeqCst);
         let fs = stepper
             .advance(&mut system, &mut x, &mut v, policy)
             .unwrap();
         let allocations = ALLOCATIONS.load(Ordering::SeqCst) - before;
+        definite += fs.newton.definite_iterations;
         frames.push((
             allocations,
             fs.newton.iterations,
@@ -96,7 +112,10 @@ fn newton_on_the_drape() {
             fs.substeps,
         ));
     }
-    println!("(allocations, iterations, factorizations, line-search trials, substeps) per frame:");
+    println!(
+        "{what}: {definite} definite iterations; (allocations, iterations, factorizations, \
+         line-search trials, substeps) per frame:"
+    );
     for (k, f) in frames.iter().enumerate() {
         println!("frame {:2}: {f:?}", k + 1);
     }
@@ -113,8 +132,11 @@ fn newton_on_the_drape() {
     let allocations = steady[0].0;
     assert!(
         steady.iter().all(|f| f.0 == allocations),
-        "allocations per frame differ: {steady:?}"
+        "{what}: allocations per frame differ: {steady:?}"
     );
+    if scene.solver.definite_shift_ratio == 0.0 {
+        assert!(definite > 0, "{what}: no definite iteration: no test");
+    }
 }
 
 /// The drape's Hessian (rest state, every vertex free) with its diagonal lowered by 1.5 × the largest
