@@ -339,8 +339,11 @@ class System:
 
     def add_bending(self, energy=None, psi=None, hessian="exact", method="refactored", **params):
         """A hinge bending term (a built-in ``energy`` or a ``psi`` string, with its parameters);
-        ``hessian`` as in ``BendingModel``: ``"exact"``, ``"gauss-newton"`` or ``"projected"``; ``method``
-        as in ``BendingModel``: ``"refactored"`` (the default), ``"per_hinge"`` or ``"autodiff"``."""
+        ``hessian`` as in ``BendingModel``: ``"exact"``, ``"gauss-newton"`` or ``"projected"`` (the scene
+        key ``bending.hessian``; with the last two no Newton direction is exact: in ``solve_static`` and
+        ``ImplicitEuler`` the step tests never end a solve and geodesic acceleration is off);
+        ``method`` as in ``BendingModel``: ``"refactored"`` (the default), ``"per_hinge"`` or
+        ``"autodiff"``."""
         if energy is None and psi is None:
             energy = "discrete-shells"
         energy = None if energy is None else _string("energy", energy)
