@@ -302,7 +302,8 @@ pub struct NewtonParams {
     pub remember_shift: bool,
     /// Correct the full step of an exact or shifted Newton direction `d` by geodesic acceleration: try
     /// `x + d + a/2`, with `(H + σ) a = −∇³F[d, d]` from one extra gradient evaluation, before the plain
-    /// line search along `d` (module documentation, Geodesic acceleration).
+    /// line search along `d` (module documentation, Geodesic acceleration). Only on an exact Hessian: a
+    /// system whose [`Objective::hessian_is_exact`] is false gets no correction.
     pub geodesic_acceleration: bool,
     /// With [`Globalization::ShiftedExact`] in a time step: when the diagonal shift an iteration's ladder
     /// needs exceeds this many times the largest inertia term `m/Δt²` of a free vertex, the iteration takes
