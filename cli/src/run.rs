@@ -324,8 +324,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
             yield_angle: p.yield_angle,
             hardening: p.hardening,
         }),
-        hessian: HessianMode::from_name(&scene.bending.hessian)
-            .ok_or_else(|| format!("bending.hessian: unknown `{}`", scene.bending.hessian))?,
+        hessian: scene.bending.hessian_mode()?,
     };
     let (bending, stiff_rest) = match scene.bending.energy.as_str() {
         "custom" => match scene.custom_psi(k)? {

@@ -267,6 +267,22 @@ fn default_calibration() -> String {
     "eq11".into()
 }
 
+impl BendingSpec {
+    /// [`BendingSpec::hessian`] parsed.
+    ///
+    /// # Errors
+    /// A line naming the key and the modes when the name is none of them.
+    pub fn hessian_mode(&self) -> Result<HessianMode, String> {
+        HessianMode::from_name(&self.hessian).ok_or_else(|| {
+            format!(
+                "bending.hessian: unknown `{}` ({})",
+                self.hessian,
+                HessianMode::ALL.map(HessianMode::name).join(", ")
+            )
+        })
+    }
+}
+
 fn default_hessian() -> String {
     HessianMode::Exact.name().into()
 }
@@ -836,13 +852,7 @@ impl Scene {
                 self.bending.calibration
             ));
         }
-        if HessianMode::from_name(&self.bending.hessian).is_none() {
-            return Err(format!(
-                "bending.hessian: unknown `{}` ({})",
-                self.bending.hessian,
-                HessianMode::ALL.map(HessianMode::name).join(", ")
-            ));
-        }
+        self.bending.hessian_mode()?;
         if let Some(levels) = &self.mesh.resolutions {
             if levels.is_empty() || levels.iter().any(|c| c[0] == 0 || c[1] == 0) {
                 return Err(

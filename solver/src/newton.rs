@@ -1479,10 +1479,11 @@ struct StepTests {
 }
 
 impl StepTests {
-    /// The tests of a step of length `alpha` along a direction factored with `shift` (or a Hessian that is
-    /// not exact: the definite one, or a term's Gauss–Newton or projected one), whose predicted decrease is `predicted` = |∇F · d|; `noise` is F's rounding allowance.
-    fn new(definite: bool, shift: f64, alpha: f64, predicted: f64, noise: f64) -> Self {
-        let exact_direction = !definite && shift == 0.0;
+    /// The tests of a step of length `alpha` along a direction factored with `shift` from a Hessian that is
+    /// `inexact` (the definite one, or one with a term's Gauss–Newton or projected Hessian) or not, whose
+    /// predicted decrease is `predicted` = |∇F · d|; `noise` is F's rounding allowance.
+    fn new(inexact: bool, shift: f64, alpha: f64, predicted: f64, noise: f64) -> Self {
+        let exact_direction = !inexact && shift == 0.0;
         let newton_step = exact_direction && alpha == 1.0;
         Self {
             newton_step,
