@@ -263,7 +263,8 @@ pub const MAX_ITERATIONS_CEILING_TEXT: &str = "1 000 000";
 /// Newton parameters.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NewtonParams {
-    /// Iteration limit (front ends accept 1 to [`MAX_ITERATIONS_CEILING`]).
+    /// Iteration limit, at least 1 ([`NewtonParams::validate`]; front ends accept 1 to
+    /// [`MAX_ITERATIONS_CEILING`]).
     pub max_iterations: usize,
     /// Stop when the free gradient norm ‖∇F‖ is at most this.
     pub gradient_tolerance: f64,
@@ -386,6 +387,63 @@ impl Default for NewtonParams {
 
 /// The default [`NewtonParams::definite_shift_ratio`] (module documentation, Globalization).
 pub const DEFINITE_SHIFT_RATIO: f64 = 1000.0;
+
+impl NewtonParams {
+    /// Checks that every parameter lies in the range where it means what its documentation says:
+    /// `max_iterations` ≥ 1 (any budget above: the histories grow only as a solve runs); `armijo` in (0, ½) (a unit Newton step near a minimum passes Armijo's test
+    /// only below ½, and the rounding band's slope test takes `1 − 2c`); `gradient_tolerance`,
+    /// `step_tolerance`, `relative_gradient_tolerance`, `relative_step_tolerance` and `length_scale`
+    /// finite and ≥ 0 (0: that test off); `initial_shift` finite and > 0 (the shift ladder multiplies
+    /// it); `definite_shift_ratio` ≥ 0, `f64::INFINITY` allowed (never). The counts other than
+    /// `max_iterations` may be 0 (no halvings, shifts or damped retries). [`Newton::new`] and
+    /// [`Newton::minimize`] call it, so that a parameter out of range is an error naming it instead of
+    /// a solve that silently never converges (a NaN tolerance) or a ladder that never climbs (a zero
+    /// initial shift).
+    ///
+    /// # Errors
+    /// [`SolverError::Input`] naming the first parameter out of its range and its value.
+    pub fn validate(&self) -> Result<(), SolverError> {
+        let bad = |name: &str, range: &str, value: f64| {
+            Err(SolverError::Input(format!(
+                "NewtonParams::{name} must be {range}, got {}",
+                hinge_core::error::Num(value)
+            )))
+        };
+        if self.max_iterations == 0 {
+            return Err(SolverError::Input(
+                "NewtonParams::max_iterations must be at least 1, got 0".into(),
+            ));
+        }
+        if !(self.armijo > 0.0 && self.armijo < 0.5) {
+            return bad("armijo", "in (0, 1/2)", self.armijo);
+        }
+        for (name, value) in [
+            ("gradient_tolerance", self.gradient_tolerance),
+            ("step_tolerance", self.step_tolerance),
+            (
+                "relative_gradient_tolerance",
+                self.relative_gradient_tolerance,
+            ),
+            ("relative_step_tolerance", self.relative_step_tolerance),
+            ("length_scale", self.length_scale),
+        ] {
+            if !(value >= 0.0 && value.is_finite()) {
+                return bad(name, "finite and non-negative (0: off)", value);
+            }
+        }
+        if !(self.initial_shift > 0.0 && self.initial_shift.is_finite()) {
+            return bad("initial_shift", "finite and positive", self.initial_shift);
+        }
+        if !(self.definite_shift_ratio >= 0.0) {
+            return bad(
+                "definite_shift_ratio",
+                "non-negative (inf: never)",
+                self.definite_shift_ratio,
+            );
+        }
+        Ok(())
+    }
+}
 
 /// Iterations the per-solve histories ([`NewtonStats::gradient_norms`], [`NewtonStats::step_norms`]) have
 /// room for before they grow: `max_iterations` can be anything a scene file says (`4294967296` once
@@ -740,6 +798,7 @@ impl Newton {
     /// Binds to `objective`'s pattern with `pins` eliminated, analysing it with `solver`.
     ///
     /// # Errors
+    /// [`SolverError::Input`] for a parameter out of its range ([`NewtonParams::validate`]);
     /// [`SolverError::Linear`] if the analysis fails.
     pub fn new<O: Objective>(
         objective: &O,
@@ -747,6 +806,7 @@ impl Newton {
         mut solver: Box<dyn LinearSolver>,
         params: NewtonParams,
     ) -> Result<Self, SolverError> {
+        params.validate()?;
         let mut free = pins.free_dofs();
         free.resize(3 * objective.n_vertices(), true);
         let reduced = Reduced::new(objective.pattern(), &free);
@@ -862,7 +922,9 @@ impl Newton {
     /// allocated per iteration.
     ///
     /// # Errors
-    /// [`SolverError`] with the statistics so far.
+    /// [`SolverError::Input`] for positions or inertia of the wrong size or a parameter out of its range
+    /// ([`NewtonParams::validate`], checked again here since [`Newton::params`] is public; nothing
+    /// changes then); otherwise [`SolverError`] with the statistics so far.
     pub fn minimize<O: Objective>(
         &mut self,
         objective: &mut O,
@@ -880,6 +942,8 @@ impl Newton {
                 x.len()
             )));
         }
+        // `params` is a public field: checked again here, where a change after `new` takes effect.
+        self.params.validate()?;
         let params = self.params.clone();
         let mut stats = NewtonStats {
             // Room for the iterations a solve usually takes; a larger budget (a user may give any) grows

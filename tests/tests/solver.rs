@@ -352,6 +352,166 @@ fn statics_of_a_pinned_cloth_converges_quadratically() {
     );
 }
 
+/// Every Newton parameter out of its range is an input error naming it, from `Newton::new` and, after a
+/// change of the public `params`, from `minimize`, which then leaves the positions as they were; the
+/// ends of each range are accepted.
+#[test]
+fn newton_parameters_out_of_range_are_named_errors() {
+    let rest = cloth(4);
+    let n = rest.n_vertices();
+    let mut sys = spring_system(&rest, true);
+    let pinned: Vec<usize> = (0..n).filter(|&v| rest.positions()[v].y == 0.0).collect();
+    let pins = Pins::new(n, pinned).unwrap();
+    let d = NewtonParams::default;
+    let bad: Vec<(&str, NewtonParams)> = vec![
+        (
+            "max_iterations",
+            NewtonParams {
+                max_iterations: 0,
+                ..d()
+            },
+        ),
+        ("armijo", NewtonParams { armijo: 0.0, ..d() }),
+        ("armijo", NewtonParams { armijo: 0.5, ..d() }),
+        (
+            "armijo",
+            NewtonParams {
+                armijo: f64::NAN,
+                ..d()
+            },
+        ),
+        (
+            "gradient_tolerance",
+            NewtonParams {
+                gradient_tolerance: f64::NAN,
+                ..d()
+            },
+        ),
+        (
+            "gradient_tolerance",
+            NewtonParams {
+                gradient_tolerance: -1e-8,
+                ..d()
+            },
+        ),
+        (
+            "step_tolerance",
+            NewtonParams {
+                step_tolerance: f64::INFINITY,
+                ..d()
+            },
+        ),
+        (
+            "relative_gradient_tolerance",
+            NewtonParams {
+                relative_gradient_tolerance: -1.0,
+                ..d()
+            },
+        ),
+        (
+            "relative_step_tolerance",
+            NewtonParams {
+                relative_step_tolerance: f64::NAN,
+                ..d()
+            },
+        ),
+        (
+            "length_scale",
+            NewtonParams {
+                length_scale: -0.1,
+                ..d()
+            },
+        ),
+        (
+            "initial_shift",
+            NewtonParams {
+                initial_shift: 0.0,
+                ..d()
+            },
+        ),
+        (
+            "initial_shift",
+            NewtonParams {
+                initial_shift: f64::INFINITY,
+                ..d()
+            },
+        ),
+        (
+            "definite_shift_ratio",
+            NewtonParams {
+                definite_shift_ratio: f64::NAN,
+                ..d()
+            },
+        ),
+        (
+            "definite_shift_ratio",
+            NewtonParams {
+                definite_shift_ratio: -1.0,
+                ..d()
+            },
+        ),
+    ];
+    for (name, params) in bad {
+        let err = Newton::new(&sys, &pins, default_solver(), params.clone())
+            .err()
+            .unwrap_or_else(|| panic!("accepted {params:?}"));
+        assert!(matches!(err, SolverError::Input(_)), "{err}");
+        assert!(
+            err.to_string().contains(&format!("NewtonParams::{name} ")),
+            "{err}"
+        );
+        assert_eq!(
+            params.validate().err().map(|e| e.to_string()),
+            Some(err.to_string())
+        );
+    }
+    let edges = [
+        NewtonParams {
+            max_iterations: 1,
+            armijo: f64::MIN_POSITIVE,
+            gradient_tolerance: 0.0,
+            step_tolerance: 0.0,
+            relative_gradient_tolerance: 0.0,
+            relative_step_tolerance: 0.0,
+            length_scale: 0.0,
+            initial_shift: f64::MIN_POSITIVE,
+            definite_shift_ratio: 0.0,
+            max_line_search: 0,
+            max_shifts: 0,
+            damped_retries: 0,
+            ..d()
+        },
+        NewtonParams {
+            max_iterations: usize::MAX,
+            armijo: 0.4999,
+            definite_shift_ratio: f64::INFINITY,
+            ..d()
+        },
+    ];
+    for params in edges {
+        assert!(params.validate().is_ok(), "{params:?}");
+        assert!(Newton::new(&sys, &pins, default_solver(), params).is_ok());
+    }
+    // A change of the public parameters after `new` is checked by the solve, which changes nothing.
+    let mut newton = Newton::new(&sys, &pins, default_solver(), d()).unwrap();
+    let mut x: Vec<Vector3<f64>> = rest.positions().to_vec();
+    x[n - 1].z += 0.01;
+    let before = x.clone();
+    newton.params.gradient_tolerance = f64::NAN;
+    let err = newton.minimize(&mut sys, &mut x, None).unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("NewtonParams::gradient_tolerance "),
+        "{err}"
+    );
+    assert_eq!(err.stats().iterations, 0);
+    assert_eq!(x, before);
+    newton.params.gradient_tolerance = 1e-8;
+    newton.params.max_iterations = 100;
+    let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+    assert!(stats.iterations > 0 && x != before);
+}
+
 #[test]
 fn implicit_euler_never_increases_the_energy_of_an_undamped_system() {
     let rest = cloth(6);
