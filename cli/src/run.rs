@@ -412,6 +412,7 @@ pub fn build(scene: &Scene, rest: &TriMesh, damped: bool) -> Result<Built, Strin
         remember_shift: scene.solver.remember_shift,
         geodesic_acceleration: scene.solver.geodesic_acceleration,
         definite_shift_ratio: scene.solver.definite_shift_ratio,
+        definite_hold: scene.solver.definite_hold,
         ..NewtonParams::default()
     };
     let solver = linear_solver(scene);

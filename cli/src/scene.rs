@@ -490,11 +490,16 @@ pub struct SolverSpec {
     #[serde(default = "default_geodesic_acceleration")]
     pub geodesic_acceleration: bool,
     /// `shifted-exact` in a time step: when an iteration's diagonal shift exceeds this many times the
-    /// largest inertia term m/Δt² of a vertex, it takes the definite Hessian instead, until a full step
-    /// (non-negative; `inf`: never; default 1000; see
+    /// largest inertia term m/Δt² of a vertex, it takes the definite Hessian instead, until `definite_hold`
+    /// full steps (non-negative; `inf`: never; default 1000; see
     /// `hinge_solver::newton::NewtonParams::definite_shift_ratio`).
     #[serde(default = "default_definite_shift_ratio")]
     pub definite_shift_ratio: f64,
+    /// Full steps taken with the definite Hessian once an iteration switched to it (`project-on-demand`,
+    /// or a shift above `definite_shift_ratio`) before the exact Hessian is tried again (at least 1;
+    /// default 1; see `hinge_solver::newton::NewtonParams::definite_hold`).
+    #[serde(default = "default_definite_hold")]
+    pub definite_hold: usize,
     /// `--static` with the StVK membrane: reach the equilibrium through softer membranes first
     /// (`hinge_solver::statics`; default true; false: one Newton solve at the scene's material).
     #[serde(default = "default_membrane_continuation")]
@@ -527,6 +532,10 @@ fn default_geodesic_acceleration() -> bool {
 
 fn default_definite_shift_ratio() -> f64 {
     hinge_solver::newton::DEFINITE_SHIFT_RATIO
+}
+
+fn default_definite_hold() -> usize {
+    hinge_solver::newton::DEFINITE_HOLD
 }
 
 fn default_membrane_continuation() -> bool {
@@ -574,6 +583,7 @@ impl Default for SolverSpec {
             remember_shift: default_remember_shift(),
             geodesic_acceleration: default_geodesic_acceleration(),
             definite_shift_ratio: default_definite_shift_ratio(),
+            definite_hold: default_definite_hold(),
             membrane_continuation: default_membrane_continuation(),
             integrator: default_integrator(),
             substeps: default_substeps(),
@@ -818,6 +828,9 @@ impl Scene {
                 "solver.globalization: unknown `{}` (project-on-demand, shifted-exact)",
                 self.solver.globalization
             ));
+        }
+        if self.solver.definite_hold == 0 {
+            return Err("solver.definite_hold: must be at least 1, got 0".into());
         }
         if !(self.solver.definite_shift_ratio >= 0.0) {
             return Err(format!(

@@ -953,6 +953,13 @@ fn scenes_are_listed_shown_and_validated() {
             "solver.definite_shift_ratio",
         ),
         (
+            text.replace(
+                "gradient_tolerance = 1e-6",
+                "gradient_tolerance = 1e-6\ndefinite_hold = 0",
+            ),
+            "solver.definite_hold: must be at least 1, got 0",
+        ),
+        (
             text.replace("hessian = \"exact\"", "hessian = \"psd\""),
             "bending.hessian: unknown `psd` (exact, gauss-newton, projected)",
         ),
@@ -1590,6 +1597,30 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
         always["definite_iterations"].as_u64().unwrap() > 0,
         "{always}"
     );
+    // `definite_hold`: with every shifted iteration turned definite, holding the definite Hessian for two
+    // full steps instead of the default one changes the run (the key reaches Newton), and it converges.
+    let f = dir.join("hold_2.toml");
+    std::fs::write(
+        &f,
+        shown.replace(
+            "gradient_tolerance = 1e-6",
+            "gradient_tolerance = 1e-6\ndefinite_shift_ratio = 0.0\ndefinite_hold = 2",
+        ),
+    )
+    .unwrap();
+    let mut all = vec![f.to_str().unwrap().to_string()];
+    all.extend(args.iter().map(|a| a.to_string()));
+    let all: Vec<&str> = all.iter().map(String::as_str).collect();
+    let hold2 = run_summary(&dir.join("hold_2"), &all);
+    let counts = |r: &serde_json::Value| {
+        ["newton_iterations", "factorizations", "definite_iterations"].map(|k| r[k].as_u64())
+    };
+    println!("hold 2 {:?}, default {:?}", counts(&hold2), counts(&always));
+    assert!(
+        hold2["max_final_gradient_norm"].as_f64().unwrap() <= 1e-6,
+        "{hold2}"
+    );
+    assert_ne!(counts(&hold2), counts(&always));
 }
 
 /// `bending.hessian`: Newton on the drape with its bending term's Hessian in Gauss–Newton or projected mode

@@ -671,6 +671,7 @@ fn _hinge(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "DEFINITE_SHIFT_RATIO",
         hinge_solver::newton::DEFINITE_SHIFT_RATIO,
     )?;
+    m.add("DEFINITE_HOLD", hinge_solver::newton::DEFINITE_HOLD)?;
     m.add_class::<Model>()?;
     m.add_class::<system::PySystem>()?;
     m.add_class::<system::PyStepper>()?;

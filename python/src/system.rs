@@ -20,8 +20,9 @@ use hinge_energies::spring::MassSpring;
 use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
-    DEFINITE_SHIFT_RATIO, Globalization, ImplicitEuler as Stepper, MAX_ITERATIONS_CEILING,
-    MAX_ITERATIONS_CEILING_TEXT, Newton, NewtonParams, NewtonStats, SubstepPolicy,
+    DEFINITE_HOLD, DEFINITE_SHIFT_RATIO, Globalization, ImplicitEuler as Stepper,
+    MAX_ITERATIONS_CEILING, MAX_ITERATIONS_CEILING_TEXT, Newton, NewtonParams, NewtonStats,
+    SubstepPolicy,
 };
 use hinge_solver::statics::{
     continuation_scales, continued_start_all, mean_edge_length, minimize_continued_all,
@@ -577,6 +578,7 @@ struct PyNewtonOptions<'a> {
     remember_shift: bool,
     geodesic_acceleration: bool,
     definite_shift_ratio: f64,
+    definite_hold: usize,
 }
 
 /// Newton's settings from Python: the limits, the [`Globalization`] by its scene-file name,
@@ -608,6 +610,9 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
             )));
         }
     }
+    if o.definite_hold == 0 {
+        return Err(value_error("definite_hold must be at least 1, got 0"));
+    }
     if o.definite_shift_ratio.is_nan() || o.definite_shift_ratio < 0.0 {
         return Err(value_error(format!(
             "definite_shift_ratio must be ≥ 0 (inf: never), got {}",
@@ -631,18 +636,20 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
         remember_shift: o.remember_shift,
         geodesic_acceleration: o.geodesic_acceleration,
         definite_shift_ratio: o.definite_shift_ratio,
+        definite_hold: o.definite_hold,
         ..NewtonParams::default()
     })
 }
 
 /// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
 /// extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
-/// relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True)`: the equilibrium ∇E = 0 from `X0` (pinned vertices
+/// relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True,
+/// definite_hold=DEFINITE_HOLD)`: the equilibrium ∇E = 0 from `X0` (pinned vertices
 /// held at their `X0` positions) by Newton, through softer StVK membranes first when
 /// [`hinge_solver::statics::membrane_scales`] asks for it and `membrane_continuation` is set. Returns
 /// `(X, stats)`; a failed solve raises `ValueError` with the solver's message.
 #[pyfunction]
-#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true))]
+#[pyo3(signature = (system, x0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, membrane_continuation=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true, definite_hold=DEFINITE_HOLD))]
 #[allow(clippy::too_many_arguments)]
 pub fn solve_static<'py>(
     py: Python<'py>,
@@ -657,6 +664,7 @@ pub fn solve_static<'py>(
     relative_step_tolerance: f64,
     remember_shift: bool,
     geodesic_acceleration: bool,
+    definite_hold: usize,
 ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyDict>)> {
     let mut x = system.positions(&x0)?;
     let params = newton_params(
@@ -671,6 +679,7 @@ pub fn solve_static<'py>(
             geodesic_acceleration,
             // Statics have no inertia: the ratio does not apply.
             definite_shift_ratio: DEFINITE_SHIFT_RATIO,
+            definite_hold,
         },
         &system.rest,
     )?;
@@ -797,9 +806,10 @@ impl PyStepper {
     /// A stepper from `x0` (and velocities `v0`, default zero) with step `dt` and lumped masses of
     /// `density`; the system's current terms and pins are copied. `globalization`, `extrapolate`, the
     /// relative tolerances, `remember_shift` and `geodesic_acceleration` as in `solve_static`;
-    /// `definite_shift_ratio` ([`NewtonParams::definite_shift_ratio`], ≥ 0, `inf`: never).
+    /// `definite_shift_ratio` ([`NewtonParams::definite_shift_ratio`], ≥ 0, `inf`: never); `definite_hold` as
+    /// in `solve_static`.
     #[new]
-    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true, definite_shift_ratio=DEFINITE_SHIFT_RATIO))]
+    #[pyo3(signature = (system, x0, dt, density, v0=None, max_iterations=50, gradient_tolerance=1e-8, globalization="shifted-exact", extrapolate=true, relative_gradient_tolerance=0.0, relative_step_tolerance=0.0, remember_shift=true, geodesic_acceleration=true, definite_shift_ratio=DEFINITE_SHIFT_RATIO, definite_hold=DEFINITE_HOLD))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -817,6 +827,7 @@ impl PyStepper {
         remember_shift: bool,
         geodesic_acceleration: bool,
         definite_shift_ratio: f64,
+        definite_hold: usize,
     ) -> PyResult<Self> {
         let x = system.positions(&x0)?;
         let v = match v0 {
@@ -840,6 +851,7 @@ impl PyStepper {
                 remember_shift,
                 geodesic_acceleration,
                 definite_shift_ratio,
+                definite_hold,
             },
             &system.rest,
         )?;
@@ -1195,6 +1207,7 @@ pub fn fit<'py>(
             remember_shift: true,
             geodesic_acceleration: true,
             definite_shift_ratio: DEFINITE_SHIFT_RATIO,
+            definite_hold: DEFINITE_HOLD,
         },
         &rest,
     )?;

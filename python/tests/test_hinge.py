@@ -576,6 +576,27 @@ def test_unit_free_stopping_tests_shift_memory_and_acceleration_from_python():
     default = inspect.signature(hinge.ImplicitEuler).parameters["definite_shift_ratio"].default
     assert default is hinge.DEFINITE_SHIFT_RATIO and default == 1000.0
     assert "DEFINITE_SHIFT_RATIO`` = 1000" in hinge.ImplicitEuler.__doc__
+    # definite_hold: with every shifted iteration definite, holding the definite Hessian for 3 full steps
+    # instead of 1 changes the steps, and both converge; project on demand in statics takes it too.
+    counts = {}
+    for hold in (1, 3):
+        t = hinge.ImplicitEuler(s, X0, 0.01, 0.1, gradient_tolerance=1e-9, definite_shift_ratio=0.0,
+                                definite_hold=hold)
+        steps = [t.step() for _ in range(2)]
+        assert all(st["final_gradient_norm"] <= 1e-9 for _, st in steps)
+        counts[hold] = [(st["newton_iterations"], st["factorizations"], st["definite_iterations"])
+                        for _, st in steps]
+    assert counts[1] != counts[3], counts
+    Xh, sh = hinge.solve_static(s, X0, globalization="project-on-demand", definite_hold=2)
+    assert sh["final_gradient_norm"] <= 1e-8
+    for bad in (0, -1, 1.5, "2", True):
+        with pytest.raises(ValueError, match="definite_hold"):
+            hinge.ImplicitEuler(s, V, 0.01, 0.1, definite_hold=bad)
+        with pytest.raises(ValueError, match="definite_hold"):
+            hinge.solve_static(s, X0, definite_hold=bad)
+    for f in (hinge.ImplicitEuler, hinge.solve_static):
+        default = inspect.signature(f).parameters["definite_hold"].default
+        assert default is hinge.DEFINITE_HOLD and default == 1
 
 
 def test_membrane_continuation_reaches_the_same_equilibrium_in_fewer_iterations():

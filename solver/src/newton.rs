@@ -39,11 +39,24 @@
 //!   15 / 56. Small ratios cost the torus and the box their per-frame medians (the definite Hessian drops
 //!   the curvature a folding shell needs, as project on demand does); 10³ lowers every scene's total and
 //!   maximum and leaves its median within its spread.
+//!
+//!   "Until a full step" is [`NewtonParams::definite_hold`] full steps (default [`DEFINITE_HOLD`], 1):
+//!   the exact Hessian is tried again only after that many. Measured (2026-12-07, nineteenth session;
+//!   five starts, medians; hold 2 against 1): `project-on-demand` on the drape 585 / 661 (1.13
+//!   factorizations per iteration) against 574 / 698, 4 656–673, 8 777–800; `shell-drop` with
+//!   `project-on-demand` 1 093 / 1 289, 15 / 78 against 1 077 / 1 452, 14 / 63. With `shifted-exact`
+//!   (the hold acts where `definite_shift_ratio` switched): the drape unchanged, `shell-drop` 1 009 /
+//!   2 167, per frame 9 / 58 against 961 / 2 176, 12 / 57 (its default start 1 084 / 2 167, 10.5 / 59
+//!   against 904 / 2 122, 9 / 50), the torus 1 107 / 2 753, 6 / 80 against 1 107 / 2 751, 5.5 / 76, the
+//!   box 1 063 / 2 283, 11 / 58 against 1 033 / 2 324, 10 / 56, the UV sphere 1 086 / 1 943, 8.5 / 100
+//!   against 1 144 / 2 447, 8.5 / 103, the lumpy shell 1 129 / 2 492, 13.5 / 65 against 1 148 / 2 832,
+//!   14 / 67: within the spreads, so the default stays 1; 2 is the setting that
+//!   brings `project-on-demand` to one factorization per iteration on the drape.
 //! - [`Globalization::ProjectOnDemand`]: the exact Hessian when it factors; after a failure, each energy's
 //!   positive semi-definite Hessian ([`Request::definite`]: Gauss–Newton for hinge terms, the membrane's
 //!   stress clamped to its positive part in the geometric stiffness, the compressive spring term and the
-//!   obstacle-curvature contact term dropped) for this and the following iterations until one takes a full
-//!   step (`α = 1`), then the exact one again. A diagonal shift only if the definite Hessian fails too
+//!   obstacle-curvature contact term dropped) for this and the following iterations until
+//!   [`NewtonParams::definite_hold`] of them took a full step (`α = 1`), then the exact one again. A diagonal shift only if the definite Hessian fails too
 //!   (statics, singular).
 //!
 //! Measured with `hinge run drape --no-frames`, `hinge run shell-drop --no-frames` and the same scenes with
@@ -308,17 +321,23 @@ pub struct NewtonParams {
     pub geodesic_acceleration: bool,
     /// With [`Globalization::ShiftedExact`] in a time step: when the diagonal shift an iteration's ladder
     /// needs exceeds this many times the largest inertia term `m/Δt²` of a free vertex, the iteration takes
-    /// each energy's definite Hessian instead, and so do the following ones until a full step, as
-    /// [`Globalization::ProjectOnDemand`] does (module documentation, Globalization). `f64::INFINITY`:
+    /// each energy's definite Hessian instead, and so do the following ones until
+    /// [`NewtonParams::definite_hold`] full steps, as [`Globalization::ProjectOnDemand`] does (module
+    /// documentation, Globalization). `f64::INFINITY`:
     /// never (the shift alone). Statics are unaffected (no inertia).
     pub definite_shift_ratio: f64,
+    /// Full steps (`α = 1`; an extrapolated one does not count) taken with the definite Hessian, once an
+    /// iteration switched to it ([`Globalization::ProjectOnDemand`] after a failed exact factorization, or
+    /// a shift above [`NewtonParams::definite_shift_ratio`]), before the exact Hessian is tried again
+    /// (module documentation, Globalization). 1: right after the first full definite step. At least 1.
+    pub definite_hold: usize,
 }
 
 /// How Newton handles a Hessian that is not positive definite (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Globalization {
-    /// The exact Hessian when it factors, otherwise each energy's definite Hessian until a full step is
-    /// taken; a diagonal shift only if that fails too.
+    /// The exact Hessian when it factors, otherwise each energy's definite Hessian until
+    /// [`NewtonParams::definite_hold`] full steps are taken; a diagonal shift only if that fails too.
     ProjectOnDemand,
     /// The exact Hessian, with a diagonal shift raised until it factors (the default).
     #[default]
@@ -381,6 +400,7 @@ impl Default for NewtonParams {
             remember_shift: true,
             geodesic_acceleration: true,
             definite_shift_ratio: DEFINITE_SHIFT_RATIO,
+            definite_hold: DEFINITE_HOLD,
         }
     }
 }
@@ -388,9 +408,13 @@ impl Default for NewtonParams {
 /// The default [`NewtonParams::definite_shift_ratio`] (module documentation, Globalization).
 pub const DEFINITE_SHIFT_RATIO: f64 = 1000.0;
 
+/// The default [`NewtonParams::definite_hold`] (module documentation, Globalization).
+pub const DEFINITE_HOLD: usize = 1;
+
 impl NewtonParams {
     /// Checks that every parameter lies in the range where it means what its documentation says:
-    /// `max_iterations` ≥ 1 (any budget above: the histories grow only as a solve runs); `armijo` in (0, ½) (a unit Newton step near a minimum passes Armijo's test
+    /// `max_iterations` ≥ 1 (any budget above: the histories grow only as a solve runs) and
+    /// `definite_hold` ≥ 1; `armijo` in (0, ½) (a unit Newton step near a minimum passes Armijo's test
     /// only below ½, and the rounding band's slope test takes `1 − 2c`); `gradient_tolerance`,
     /// `step_tolerance`, `relative_gradient_tolerance`, `relative_step_tolerance` and `length_scale`
     /// finite and ≥ 0 (0: that test off); `initial_shift` finite and > 0 (the shift ladder multiplies
@@ -409,10 +433,15 @@ impl NewtonParams {
                 hinge_core::error::Num(value)
             )))
         };
-        if self.max_iterations == 0 {
-            return Err(SolverError::Input(
-                "NewtonParams::max_iterations must be at least 1, got 0".into(),
-            ));
+        for (name, count) in [
+            ("max_iterations", self.max_iterations),
+            ("definite_hold", self.definite_hold),
+        ] {
+            if count == 0 {
+                return Err(SolverError::Input(format!(
+                    "NewtonParams::{name} must be at least 1, got 0"
+                )));
+            }
         }
         if !(self.armijo > 0.0 && self.armijo < 0.5) {
             return bad("armijo", "in (0, 1/2)", self.armijo);
@@ -1004,9 +1033,10 @@ impl Newton {
         w: &mut Work,
     ) -> Result<(), SolverError> {
         let p = s.params;
-        // Project on demand: the exact Hessian unless the last exact one failed to factor and no full step
-        // has been taken since.
+        // Project on demand: the exact Hessian unless the last exact one failed to factor and fewer than
+        // `definite_hold` full steps have been taken since.
         let mut definite = false;
+        let mut held = 0_usize;
         let mut f = s.eval(&w.cur, Request::ALL)?;
         let mut noise = s.noise();
         self.free_gradient(s, &w.cur, &mut w.g);
@@ -1068,9 +1098,13 @@ impl Newton {
                     stats: Box::new(s.stats.clone()),
                 });
             };
-            // A full step with the definite Hessian: try the exact one again.
+            // `definite_hold` full steps with the definite Hessian: try the exact one again.
             if definite && alpha == 1.0 {
-                definite = false;
+                held += 1;
+                if held >= p.definite_hold {
+                    definite = false;
+                    held = 0;
+                }
             }
             std::mem::swap(&mut w.cur, &mut w.trial);
             f = s.eval(&w.cur, Request::ALL.with_definite(definite))?;

@@ -450,6 +450,13 @@ fn newton_parameters_out_of_range_are_named_errors() {
                 ..d()
             },
         ),
+        (
+            "definite_hold",
+            NewtonParams {
+                definite_hold: 0,
+                ..d()
+            },
+        ),
     ];
     for (name, params) in bad {
         let err = Newton::new(&sys, &pins, default_solver(), params.clone())
@@ -476,6 +483,7 @@ fn newton_parameters_out_of_range_are_named_errors() {
             length_scale: 0.0,
             initial_shift: f64::MIN_POSITIVE,
             definite_shift_ratio: 0.0,
+            definite_hold: 1,
             max_line_search: 0,
             max_shifts: 0,
             damped_retries: 0,
@@ -485,6 +493,7 @@ fn newton_parameters_out_of_range_are_named_errors() {
             max_iterations: usize::MAX,
             armijo: 0.4999,
             definite_shift_ratio: f64::INFINITY,
+            definite_hold: usize::MAX,
             ..d()
         },
     ];
@@ -1241,6 +1250,73 @@ fn both_globalizations_reach_the_same_equilibrium() {
         last > 1e-12 * first,
         "went on past the relative test: {last:e}"
     );
+}
+
+/// [`NewtonParams::definite_hold`]: once project on demand switched to the definite Hessian, an exact
+/// iteration comes only after that many full definite steps (an extrapolated step does not count), and
+/// every hold reaches the same equilibrium. Read from the iteration reports of the compressed clamped
+/// sheet (irregular: random diagonals, jitter, random numbering, rotated corners), whose exact Hessian
+/// fails to factor on the way.
+#[test]
+fn definite_hold_keeps_the_definite_hessian_for_that_many_full_steps() {
+    use hinge_solver::newton::{Globalization, IterationReport};
+    use std::sync::{Arc, Mutex};
+    let mut results = Vec::new();
+    // The fewest full definite steps before an exact iteration, over the run (None: no such switch).
+    let mut fewest = Vec::new();
+    for hold in [1, 3, 1_000_000] {
+        let (mut sys, pins, start) = compressed_clamped_sheet();
+        let params = NewtonParams {
+            gradient_tolerance: 1e-9,
+            max_iterations: 500,
+            globalization: Globalization::ProjectOnDemand,
+            definite_hold: hold,
+            ..NewtonParams::default()
+        };
+        let mut newton = Newton::new(&sys, &pins, default_solver(), params).unwrap();
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let sink = Arc::clone(&seen);
+        newton.set_observer(Some(Box::new(move |r: &IterationReport| {
+            sink.lock().unwrap().push((r.definite, r.step_length));
+        })));
+        let mut x = start;
+        let stats = newton.minimize(&mut sys, &mut x, None).unwrap();
+        assert!(stats.gradient_norms.last().unwrap() <= &1e-9);
+        let seen = seen.lock().unwrap().clone();
+        let (mut full, mut switched, mut least) = (0_usize, false, None::<usize>);
+        for &(definite, alpha) in &seen {
+            if definite {
+                switched = true;
+                if alpha == 1.0 {
+                    full += 1;
+                }
+            } else if switched {
+                least = Some(least.map_or(full, |l| l.min(full)));
+                (full, switched) = (0, false);
+            }
+        }
+        println!(
+            "hold {hold}: {} iterations, {} factorizations, {} definite; fewest full definite steps \
+             before an exact one {least:?}",
+            stats.iterations, stats.factorizations, stats.definite_iterations
+        );
+        assert!(stats.definite_iterations > 0, "never switched: no test");
+        assert!(least.is_none_or(|l| l >= hold), "hold {hold}: {least:?}");
+        fewest.push(least);
+        results.push(x);
+    }
+    // The test can fail: with a hold of 1 some exact iteration follows fewer than 3 full definite steps,
+    // and a hold beyond the run's iterations never returns to the exact Hessian.
+    assert!(fewest[0].is_some_and(|l| l < 3), "{fewest:?}");
+    assert_eq!(fewest[2], None);
+    for other in &results[1..] {
+        let d = results[0]
+            .iter()
+            .zip(other)
+            .map(|(a, b)| (a - b).norm())
+            .fold(0.0, f64::max);
+        assert!(d <= 1e-6, "different equilibria: {d:e}");
+    }
 }
 
 /// [`NewtonParams::definite_shift_ratio`]: in a time step, an iteration whose diagonal shift would exceed

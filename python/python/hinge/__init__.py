@@ -25,8 +25,11 @@ from . import _hinge
 
 DEFINITE_SHIFT_RATIO = _hinge.DEFINITE_SHIFT_RATIO
 """The default ``definite_shift_ratio`` of :class:`ImplicitEuler` (Rust ``hinge_solver::newton::DEFINITE_SHIFT_RATIO``)."""
+DEFINITE_HOLD = _hinge.DEFINITE_HOLD
+"""The default ``definite_hold`` of :func:`solve_static` and :class:`ImplicitEuler` (Rust
+``hinge_solver::newton::DEFINITE_HOLD``)."""
 
-__all__ = ["DEFINITE_SHIFT_RATIO", "BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
+__all__ = ["DEFINITE_SHIFT_RATIO", "DEFINITE_HOLD", "BendingModel", "System", "MeshWarning", "ImplicitEuler", "solve_static", "run_scene", "hinges", "energies",
            "adjoint_gradient", "fit", "fit_scene", "read_mesh", "write_mesh", "threads"]
 
 
@@ -448,7 +451,8 @@ class System:
 
 def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",
                  extrapolate=True, membrane_continuation=True, relative_gradient_tolerance=0.0,
-                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True):
+                 relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True,
+                 definite_hold=_hinge.DEFINITE_HOLD):
     """The static equilibrium from ``X0`` (pinned vertices held at their ``X0`` positions), by Newton on the
     system's energy, at most ``max_iterations`` Newton iterations (1 to 1 000 000, as in scene files).
     Returns ``(X, stats)`` with ``stats`` a dict (``newton_iterations``,
@@ -475,7 +479,10 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
     makes every solve independent of the ones before it. ``geodesic_acceleration`` (the scene key
     ``solver.geodesic_acceleration``) first tries each exact or shifted Newton step corrected by a
     second-order term (one extra gradient evaluation and triangular solve); ``False`` gives plain Newton
-    steps."""
+    steps. ``definite_hold`` (the scene key ``solver.definite_hold``, at least 1, default ``DEFINITE_HOLD``
+    = 1): once an iteration took each energy's definite Hessian (``"project-on-demand"`` after a failed
+    factorization, or the stepper's ``definite_shift_ratio``), that many full steps are taken with it
+    before the exact Hessian is tried again."""
     return _hinge.solve_static(system._s, system._x(X0), _count("max_iterations", max_iterations),
                                _number("gradient_tolerance", gradient_tolerance),
                                _globalization(globalization), _flag("extrapolate", extrapolate),
@@ -483,7 +490,8 @@ def solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, global
                                _tolerance("relative_gradient_tolerance", relative_gradient_tolerance),
                                _tolerance("relative_step_tolerance", relative_step_tolerance),
                                _flag("remember_shift", remember_shift),
-                               _flag("geodesic_acceleration", geodesic_acceleration))
+                               _flag("geodesic_acceleration", geodesic_acceleration),
+                               _count("definite_hold", definite_hold, 1))
 
 
 def _globalization(name):
@@ -550,13 +558,14 @@ class ImplicitEuler:
     prediction). ``definite_shift_ratio`` (the scene key ``solver.definite_shift_ratio``, >= 0, default
     ``DEFINITE_SHIFT_RATIO`` = 1000, the Rust default):
     with ``"shifted-exact"``, an iteration whose diagonal shift would exceed this many times the largest
-    inertia term m/dt² of a vertex takes each energy's definite Hessian instead, until a full step;
-    ``float("inf")`` never does (the shift alone)."""
+    inertia term m/dt² of a vertex takes each energy's definite Hessian instead, until ``definite_hold`` full
+    steps;
+    ``float("inf")`` never does (the shift alone). ``definite_hold`` as in ``solve_static``."""
 
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
                  relative_step_tolerance=0.0, remember_shift=True, geodesic_acceleration=True,
-                 definite_shift_ratio=_hinge.DEFINITE_SHIFT_RATIO):
+                 definite_shift_ratio=_hinge.DEFINITE_SHIFT_RATIO, definite_hold=_hinge.DEFINITE_HOLD):
         V0 = None if V0 is None else system._x(V0)
         self._t = _hinge.ImplicitEuler(system._s, system._x(X0), _number("dt", dt), _number("density", density), V0,
                                        _count("max_iterations", max_iterations),
@@ -566,7 +575,8 @@ class ImplicitEuler:
                                        _tolerance("relative_step_tolerance", relative_step_tolerance),
                                        _flag("remember_shift", remember_shift),
                                        _flag("geodesic_acceleration", geodesic_acceleration),
-                                       _number("definite_shift_ratio", definite_shift_ratio))
+                                       _number("definite_shift_ratio", definite_shift_ratio),
+                                       _count("definite_hold", definite_hold, 1))
 
     def step(self):
         return self._t.step()
