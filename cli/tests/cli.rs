@@ -1566,20 +1566,27 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
     );
     // `definite_shift_ratio`: at 0 every iteration that needs a shift takes the definite Hessian instead,
     // at `inf` none does (the shift alone); both converge every step.
-    let ratio = |value: &str| {
-        let f = dir.join(format!("ratio_{value}.toml"));
+    // The drape with `keys` added under [solver], run as `name`.
+    let variant = |name: &str, keys: &str| {
+        let f = dir.join(format!("{name}.toml"));
         std::fs::write(
             &f,
             shown.replace(
                 "gradient_tolerance = 1e-6",
-                &format!("gradient_tolerance = 1e-6\ndefinite_shift_ratio = {value}"),
+                &format!("gradient_tolerance = 1e-6\n{keys}"),
             ),
         )
         .unwrap();
         let mut all = vec![f.to_str().unwrap().to_string()];
         all.extend(args.iter().map(|a| a.to_string()));
         let all: Vec<&str> = all.iter().map(String::as_str).collect();
-        run_summary(&dir.join(format!("ratio_{value}")), &all)
+        run_summary(&dir.join(name), &all)
+    };
+    let ratio = |value: &str| {
+        variant(
+            &format!("ratio_{value}"),
+            &format!("definite_shift_ratio = {value}"),
+        )
     };
     let (always, never) = (ratio("0.0"), ratio("inf"));
     println!(
@@ -1599,19 +1606,7 @@ fn the_globalization_and_unit_free_stopping_keys_run() {
     );
     // `definite_hold`: with every shifted iteration turned definite, holding the definite Hessian for two
     // full steps instead of the default one changes the run (the key reaches Newton), and it converges.
-    let f = dir.join("hold_2.toml");
-    std::fs::write(
-        &f,
-        shown.replace(
-            "gradient_tolerance = 1e-6",
-            "gradient_tolerance = 1e-6\ndefinite_shift_ratio = 0.0\ndefinite_hold = 2",
-        ),
-    )
-    .unwrap();
-    let mut all = vec![f.to_str().unwrap().to_string()];
-    all.extend(args.iter().map(|a| a.to_string()));
-    let all: Vec<&str> = all.iter().map(String::as_str).collect();
-    let hold2 = run_summary(&dir.join("hold_2"), &all);
+    let hold2 = variant("hold_2", "definite_shift_ratio = 0.0\ndefinite_hold = 2");
     let counts = |r: &serde_json::Value| {
         ["newton_iterations", "factorizations", "definite_iterations"].map(|k| r[k].as_u64())
     };
