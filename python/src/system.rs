@@ -610,9 +610,6 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
             )));
         }
     }
-    if o.definite_hold == 0 {
-        return Err(value_error("definite_hold must be at least 1, got 0"));
-    }
     if o.definite_shift_ratio.is_nan() || o.definite_shift_ratio < 0.0 {
         return Err(value_error(format!(
             "definite_shift_ratio must be ≥ 0 (inf: never), got {}",
@@ -625,7 +622,7 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
             o.globalization
         ))
     })?;
-    Ok(NewtonParams {
+    let params = NewtonParams {
         max_iterations: o.max_iterations,
         gradient_tolerance: o.gradient_tolerance,
         globalization,
@@ -638,7 +635,11 @@ fn newton_params(o: PyNewtonOptions<'_>, rest: &TriMesh) -> PyResult<NewtonParam
         definite_shift_ratio: o.definite_shift_ratio,
         definite_hold: o.definite_hold,
         ..NewtonParams::default()
-    })
+    };
+    // The library's check of every parameter: the ones above with their keyword's name first, the rest
+    // (`definite_hold`) named as `NewtonParams` fields.
+    params.validate().map_err(value_error)?;
+    Ok(params)
 }
 
 /// `solve_static(system, X0, max_iterations=500, gradient_tolerance=1e-8, globalization="shifted-exact",

@@ -40,24 +40,25 @@
 //!   the curvature a folding shell needs, as project on demand does); 10³ lowers every scene's total and
 //!   maximum and leaves its median within its spread.
 //!
-//!   "Until a full step" is [`NewtonParams::definite_hold`] full steps (default [`DEFINITE_HOLD`], 1):
-//!   the exact Hessian is tried again only after that many. Measured (2026-12-07, nineteenth session;
-//!   five starts, medians; hold 2 against 1): `project-on-demand` on the drape 585 / 661 (1.13
-//!   factorizations per iteration) against 574 / 698, 4 656–673, 8 777–800; `shell-drop` with
-//!   `project-on-demand` 1 093 / 1 289, 15 / 78 against 1 077 / 1 452, 14 / 63. With `shifted-exact`
-//!   (the hold acts where `definite_shift_ratio` switched): the drape unchanged, `shell-drop` 1 009 /
-//!   2 167, per frame 9 / 58 against 961 / 2 176, 12 / 57 (its default start 1 084 / 2 167, 10.5 / 59
-//!   against 904 / 2 122, 9 / 50), the torus 1 107 / 2 753, 6 / 80 against 1 107 / 2 751, 5.5 / 76, the
-//!   box 1 063 / 2 283, 11 / 58 against 1 033 / 2 324, 10 / 56, the UV sphere 1 086 / 1 943, 8.5 / 100
-//!   against 1 144 / 2 447, 8.5 / 103, the lumpy shell 1 129 / 2 492, 13.5 / 65 against 1 148 / 2 832,
-//!   14 / 67: within the spreads, so the default stays 1; 2 is the setting that
-//!   brings `project-on-demand` to one factorization per iteration on the drape.
+//!   "Until a full step" is [`NewtonParams::definite_hold`] full steps (default [`DEFINITE_HOLD`], 1): the
+//!   exact Hessian is tried again only after that many. Measured (2026-12-07, nineteenth session;
+//!   `docs/newton/ensemble.sh` and `docs/newton/obj_ensemble.sh` with `[solver] definite_hold` set, five
+//!   starts, medians; hold 2 against 1): `project-on-demand` on the drape 585 / 661 (1.13 factorizations per
+//!   iteration) against 574 / 698 (hold 4: 656–673 iterations, hold 8: 777–800); `shell-drop` with
+//!   `project-on-demand` 1 093 / 1 289, 15 / 78 against 1 077 / 1 452, 14 / 63. With `shifted-exact` (the
+//!   hold acts where `definite_shift_ratio` switched): the drape unchanged, `shell-drop` 1 009 / 2 167, per
+//!   frame 9 / 58 against 961 / 2 176, 12 / 57 (its default start 1 084 / 2 167, 10.5 / 59 against
+//!   904 / 2 122, 9 / 50), the torus 1 107 / 2 753, 6 / 80 against 1 107 / 2 751, 5.5 / 76, the box
+//!   1 063 / 2 283, 11 / 58 against 1 033 / 2 324, 10 / 56, the UV sphere 1 086 / 1 943, 8.5 / 100 against
+//!   1 144 / 2 447, 8.5 / 103, the lumpy shell 1 129 / 2 492, 13.5 / 65 against 1 148 / 2 832, 14 / 67:
+//!   within the spreads, so the default stays 1; 2 is the setting that brings `project-on-demand` to 1.13
+//!   factorizations per iteration on the drape (the issue's ≤ 1.15, not its ≤ 450 iterations).
 //! - [`Globalization::ProjectOnDemand`]: the exact Hessian when it factors; after a failure, each energy's
 //!   positive semi-definite Hessian ([`Request::definite`]: Gauss–Newton for hinge terms, the membrane's
 //!   stress clamped to its positive part in the geometric stiffness, the compressive spring term and the
 //!   obstacle-curvature contact term dropped) for this and the following iterations until
-//!   [`NewtonParams::definite_hold`] of them took a full step (`α = 1`), then the exact one again. A diagonal shift only if the definite Hessian fails too
-//!   (statics, singular).
+//!   [`NewtonParams::definite_hold`] of them took a full step (`α = 1`), then the exact one again. A
+//!   diagonal shift only if the definite Hessian fails too (statics, singular).
 //!
 //! Measured with `hinge run drape --no-frames`, `hinge run shell-drop --no-frames` and the same scenes with
 //! `solver.globalization = "project-on-demand"`: on the drape project-on-demand needs 727 iterations and 928
@@ -323,8 +324,8 @@ pub struct NewtonParams {
     /// needs exceeds this many times the largest inertia term `m/Δt²` of a free vertex, the iteration takes
     /// each energy's definite Hessian instead, and so do the following ones until
     /// [`NewtonParams::definite_hold`] full steps, as [`Globalization::ProjectOnDemand`] does (module
-    /// documentation, Globalization). `f64::INFINITY`:
-    /// never (the shift alone). Statics are unaffected (no inertia).
+    /// documentation, Globalization). `f64::INFINITY`: never (the shift alone). Statics are unaffected
+    /// (no inertia).
     pub definite_shift_ratio: f64,
     /// Full steps (`α = 1`; an extrapolated one does not count) taken with the definite Hessian, once an
     /// iteration switched to it ([`Globalization::ProjectOnDemand`] after a failed exact factorization, or

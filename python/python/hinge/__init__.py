@@ -559,8 +559,7 @@ class ImplicitEuler:
     ``DEFINITE_SHIFT_RATIO`` = 1000, the Rust default):
     with ``"shifted-exact"``, an iteration whose diagonal shift would exceed this many times the largest
     inertia term m/dt² of a vertex takes each energy's definite Hessian instead, until ``definite_hold`` full
-    steps;
-    ``float("inf")`` never does (the shift alone). ``definite_hold`` as in ``solve_static``."""
+    steps; ``float("inf")`` never does (the shift alone). ``definite_hold`` as in ``solve_static``."""
 
     def __init__(self, system, X0, dt, density, V0=None, max_iterations=50, gradient_tolerance=1e-8,
                  globalization="shifted-exact", extrapolate=True, relative_gradient_tolerance=0.0,
