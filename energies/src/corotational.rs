@@ -33,24 +33,16 @@
 //! line or a point; numerically, edges whose angle has a sine below [`DEGENERATE_SIN`]): evaluation then fails with [`EvalError::Element`] naming the triangle (index and
 //! vertices in the caller's numbering).
 
-use std::sync::Arc;
-
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
 use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
-use hinge_core::pattern::SymmetricPattern;
 use hinge_core::{ElementRef, EvalError, TriMesh};
 
 /// The co-rotational membrane over every triangle of a mesh.
 #[derive(Debug, Clone)]
 pub struct CorotationalMembrane {
     stiffness: f64,
-    triangles: Vec<[usize; 3]>,
-    /// Per triangle: b_0, b_1, b_2 and the rest area.
-    rest: Vec<crate::util::RestShape>,
-    n_vertices: usize,
-    /// Per triangle: slots of (0,0), (1,1), (2,2), (0,1), (1,2), (2,0).
-    slots: Vec<[usize; 6]>,
+    triangles: crate::util::Triangles,
 }
 
 /// The polar decomposition of one triangle's `F` and what the derivatives need.
@@ -123,13 +115,9 @@ impl CorotationalMembrane {
                 message: format!("stiffness {stiffness} must be finite and non-negative"),
             });
         }
-        let data = crate::util::triangle_rest_shapes(rest, "corotational-membrane")?;
         Ok(Self {
             stiffness,
-            triangles: rest.triangles().to_vec(),
-            rest: data,
-            n_vertices: rest.n_vertices(),
-            slots: Vec::new(),
+            triangles: crate::util::Triangles::new(rest, "corotational-membrane")?,
         })
     }
 
@@ -172,18 +160,7 @@ impl Energy for CorotationalMembrane {
         "corotational-membrane"
     }
 
-    fn n_vertices(&self) -> usize {
-        self.n_vertices
-    }
-
-    fn couplings(&self, out: &mut Vec<(usize, usize)>) {
-        crate::util::triangle_couplings(&self.triangles, out);
-    }
-
-    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        self.slots = crate::util::triangle_slots(pattern, self.n_vertices, &self.triangles)?;
-        Ok(())
-    }
+    triangle_mesh_methods!();
 
     fn add_to(
         &mut self,
@@ -192,14 +169,13 @@ impl Energy for CorotationalMembrane {
         _: Parallelism,
         acc: &mut Accumulator,
     ) -> Result<f64, EvalError> {
-        hinge_core::mesh::check_same_vertex_count(self.n_vertices, x.len())?;
+        let tri = &self.triangles;
+        hinge_core::mesh::check_same_vertex_count(tri.n_vertices, x.len())?;
         let mut energy = 0.0;
-        for (ti, t) in self.triangles.iter().enumerate() {
-            let (b, area) = &self.rest[ti];
+        for (ti, t) in tri.corners.iter().enumerate() {
+            let (b, area) = &tri.rest[ti];
             let w = self.stiffness * area;
-            let f: Matrix3x2<f64> = x[t[0]] * b[0].transpose()
-                + x[t[1]] * b[1].transpose()
-                + x[t[2]] * b[2].transpose();
+            let f = crate::util::deformation_gradient(x, t, b);
             let Some(p) = polar(&f) else {
                 return Err(degenerate(ti, t, "is collapsed onto a line or a point"));
             };
@@ -210,7 +186,7 @@ impl Energy for CorotationalMembrane {
                     acc.add_gradient(t[v], &(diff * b[v] * w));
                 }
             }
-            if !request.hessian || self.slots.is_empty() {
+            if !request.hessian || tri.slots.is_empty() {
                 continue;
             }
             // The in-plane coefficient c_q (of q_v q_wᵀ) and the normal 2×2 form N (b_vᵀ N b_w of n nᵀ).
@@ -239,7 +215,7 @@ impl Energy for CorotationalMembrane {
                     - nn * b[v].dot(&(normal_form * b[u])))
                     * w
             };
-            crate::util::add_triangle_blocks(acc, &self.slots[ti], t, block);
+            crate::util::add_triangle_blocks(acc, &tri.slots[ti], t, block);
         }
         Ok(if request.value { energy } else { 0.0 })
     }

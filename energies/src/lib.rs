@@ -44,10 +44,9 @@
 #![deny(missing_docs)]
 
 /// The four parameter methods of [`hinge_core::energy::Energy`] for a membrane proportional to its Young's
-/// modulus and to its thickness (fields `young` and `thickness`, and `fn set_young(&mut self, f64)`, which
-/// recomputes the Lamé constants): `young` (Pa, ≥ 0) and `thickness` (m, > 0). Derivatives from the energy
-/// evaluated with the parameter set to 1, then put back (`set_young` recomputes μ and λ by the same
-/// formulas, so they come back bitwise).
+/// modulus and to its thickness (a field `material: util::PlaneStress`): `young` (Pa, ≥ 0) and `thickness`
+/// (m, > 0). Derivatives from the energy evaluated with the parameter set to 1, then put back
+/// (`PlaneStress::set_young` recomputes μ and λ by the same formulas, so they come back bitwise).
 macro_rules! young_thickness_parameters {
     () => {
         fn parameters(&self) -> Vec<hinge_core::energy::Parameter> {
@@ -61,8 +60,8 @@ macro_rules! young_thickness_parameters {
 
         fn parameter(&self, name: &str) -> Result<Vec<f64>, hinge_core::EvalError> {
             match name {
-                "young" => Ok(vec![self.young]),
-                "thickness" => Ok(vec![self.thickness]),
+                "young" => Ok(vec![self.material.young]),
+                "thickness" => Ok(vec![self.material.thickness]),
                 _ => Err(hinge_core::energy::unknown_parameter(
                     name,
                     &self.parameters(),
@@ -76,9 +75,12 @@ macro_rules! young_thickness_parameters {
             values: &[f64],
         ) -> Result<(), hinge_core::EvalError> {
             match name {
-                "young" => self.set_young(crate::util::scalar_value(name, values, 0.0)?),
+                "young" => self
+                    .material
+                    .set_young(crate::util::scalar_value(name, values, 0.0)?),
                 "thickness" => {
-                    self.thickness = crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
+                    self.material.thickness =
+                        crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
                 }
                 _ => {
                     return Err(hinge_core::energy::unknown_parameter(
@@ -96,10 +98,10 @@ macro_rules! young_thickness_parameters {
             name: &str,
             out: &mut hinge_core::energy::ParameterOutput,
         ) -> Result<(), hinge_core::EvalError> {
-            let (young, thickness) = (self.young, self.thickness);
+            let (young, thickness) = (self.material.young, self.material.thickness);
             match name {
-                "young" => self.set_young(1.0),
-                "thickness" => self.thickness = 1.0,
+                "young" => self.material.set_young(1.0),
+                "thickness" => self.material.thickness = 1.0,
                 _ => {
                     return Err(hinge_core::energy::unknown_parameter(
                         name,
@@ -108,8 +110,8 @@ macro_rules! young_thickness_parameters {
                 }
             }
             let r = crate::util::add_proportional_derivatives(self, x, name, out);
-            self.set_young(young);
-            self.thickness = thickness;
+            self.material.set_young(young);
+            self.material.thickness = thickness;
             r
         }
     };
@@ -169,6 +171,30 @@ macro_rules! proportional_parameter {
             let r = crate::util::add_proportional_derivatives(self, x, name, out);
             self.$field = kept;
             r
+        }
+    };
+}
+
+/// The three mesh methods of [`hinge_core::energy::Energy`] for a per-triangle energy that keeps its
+/// triangles in a field `triangles: util::Triangles`: `n_vertices`, `couplings` (the triangles' edges) and
+/// `bind` (each triangle's pattern slots).
+macro_rules! triangle_mesh_methods {
+    () => {
+        fn n_vertices(&self) -> usize {
+            self.triangles.n_vertices
+        }
+
+        fn couplings(&self, out: &mut Vec<(usize, usize)>) {
+            crate::util::triangle_couplings(&self.triangles.corners, out);
+        }
+
+        fn bind(
+            &mut self,
+            pattern: &std::sync::Arc<hinge_core::pattern::SymmetricPattern>,
+        ) -> Result<(), hinge_core::EvalError> {
+            let t = &mut self.triangles;
+            t.slots = crate::util::triangle_slots(pattern, t.n_vertices, &t.corners)?;
+            Ok(())
         }
     };
 }
@@ -245,7 +271,7 @@ pub(crate) mod util {
     }
 
     use hinge_core::energy::Accumulator;
-    use hinge_core::nalgebra::{Matrix2, Matrix3, Vector2};
+    use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector2};
     use hinge_core::pattern::SymmetricPattern;
     use hinge_core::{EvalError, TriMesh};
 
@@ -333,7 +359,6 @@ pub(crate) mod util {
             .collect()
     }
 
-    /// Young's modulus `Y ≥ 0`, Poisson ratio `−1 < ν < 0.5` and thickness `h > 0`, all finite.
     /// The plane-stress Lamé constants `(μ, λ) = (Y/(2(1 + ν)), Yν/(1 − ν²))` of the triangle membranes.
     pub fn plane_stress_lame(young: f64, poisson: f64) -> (f64, f64) {
         (
@@ -342,6 +367,76 @@ pub(crate) mod util {
         )
     }
 
+    /// A plane-stress membrane material: Young's modulus, Poisson ratio, thickness and the Lamé constants
+    /// [`plane_stress_lame`] derives from the first two.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct PlaneStress {
+        pub young: f64,
+        pub poisson: f64,
+        pub thickness: f64,
+        pub mu: f64,
+        pub lambda: f64,
+    }
+
+    impl PlaneStress {
+        /// The material after [`check_material`] (errors name `energy`).
+        pub fn new(
+            energy: &str,
+            young: f64,
+            poisson: f64,
+            thickness: f64,
+        ) -> Result<Self, EvalError> {
+            check_material(energy, young, poisson, thickness)?;
+            let (mu, lambda) = plane_stress_lame(young, poisson);
+            Ok(Self {
+                young,
+                poisson,
+                thickness,
+                mu,
+                lambda,
+            })
+        }
+
+        /// Sets Young's modulus and recomputes the Lamé constants.
+        pub fn set_young(&mut self, young: f64) {
+            self.young = young;
+            (self.mu, self.lambda) = plane_stress_lame(young, self.poisson);
+        }
+    }
+
+    /// The triangles a membrane runs over: their corners, rest shapes ([`triangle_rest_shapes`]) and, once
+    /// bound, their pattern slots ([`triangle_slots`]; empty before).
+    #[derive(Debug, Clone)]
+    pub struct Triangles {
+        pub corners: Vec<[usize; 3]>,
+        pub rest: Vec<RestShape>,
+        pub n_vertices: usize,
+        pub slots: Vec<[usize; 6]>,
+    }
+
+    impl Triangles {
+        /// The triangles of `rest`; a rest triangle without area is an error naming it and `energy`.
+        pub fn new(rest: &TriMesh, energy: &str) -> Result<Self, EvalError> {
+            Ok(Self {
+                rest: triangle_rest_shapes(rest, energy)?,
+                corners: rest.triangles().to_vec(),
+                n_vertices: rest.n_vertices(),
+                slots: Vec::new(),
+            })
+        }
+    }
+
+    /// A triangle's deformation gradient `F = Ds Dm⁻¹ = Σ_v x_v b_vᵀ` (3×2) from its corners `t` and rest
+    /// shape `b` ([`triangle_rest_shapes`]; the `b_v` sum to zero, so translations drop out).
+    pub fn deformation_gradient(
+        x: &[Vector3<f64>],
+        t: &[usize; 3],
+        b: &[Vector2<f64>; 3],
+    ) -> Matrix3x2<f64> {
+        x[t[0]] * b[0].transpose() + x[t[1]] * b[1].transpose() + x[t[2]] * b[2].transpose()
+    }
+
+    /// Young's modulus `Y ≥ 0`, Poisson ratio `−1 < ν < 0.5` and thickness `h > 0`, all finite.
     pub fn check_material(
         energy: &str,
         young: f64,

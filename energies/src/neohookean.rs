@@ -38,28 +38,16 @@
 //! with an area ratio so small that `det C` underflows) the energy is infinite: evaluation fails with
 //! [`EvalError::AtElement`] naming the triangle, which Newton's line search treats as a rejected trial.
 
-use std::sync::Arc;
-
 use hinge_core::bending::{Parallelism, Request};
 use hinge_core::energy::{Accumulator, Energy};
-use hinge_core::nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
-use hinge_core::pattern::SymmetricPattern;
+use hinge_core::nalgebra::{Matrix2, Matrix3, Vector3};
 use hinge_core::{ElementRef, EvalError, TriMesh};
 
 /// The compressible neo-Hookean membrane over every triangle of a mesh.
 #[derive(Debug, Clone)]
 pub struct NeoHookeanMembrane {
-    young: f64,
-    poisson: f64,
-    mu: f64,
-    lambda: f64,
-    thickness: f64,
-    triangles: Vec<[usize; 3]>,
-    /// Per triangle: b_0, b_1, b_2 and the rest area.
-    rest: Vec<crate::util::RestShape>,
-    n_vertices: usize,
-    /// Per triangle: slots of (0,0), (1,1), (2,2), (0,1), (1,2), (2,0).
-    slots: Vec<[usize; 6]>,
+    material: crate::util::PlaneStress,
+    triangles: crate::util::Triangles,
 }
 
 impl NeoHookeanMembrane {
@@ -74,35 +62,25 @@ impl NeoHookeanMembrane {
         poisson: f64,
         thickness: f64,
     ) -> Result<Self, EvalError> {
-        crate::util::check_material("neo-hookean-membrane", young, poisson, thickness)?;
-        let rest_data = crate::util::triangle_rest_shapes(rest, "neo-hookean-membrane")?;
-        let (mu, lambda) = crate::util::plane_stress_lame(young, poisson);
         Ok(Self {
-            young,
-            poisson,
-            mu,
-            lambda,
-            thickness,
-            triangles: rest.triangles().to_vec(),
-            rest: rest_data,
-            n_vertices: rest.n_vertices(),
-            slots: Vec::new(),
+            material: crate::util::PlaneStress::new(
+                "neo-hookean-membrane",
+                young,
+                poisson,
+                thickness,
+            )?,
+            triangles: crate::util::Triangles::new(rest, "neo-hookean-membrane")?,
         })
     }
 
     /// Young's modulus (Pa).
     pub fn young(&self) -> f64 {
-        self.young
+        self.material.young
     }
 
     /// The thickness (m).
     pub fn thickness(&self) -> f64 {
-        self.thickness
-    }
-
-    fn set_young(&mut self, young: f64) {
-        self.young = young;
-        (self.mu, self.lambda) = crate::util::plane_stress_lame(young, self.poisson);
+        self.material.thickness
     }
 }
 
@@ -143,18 +121,7 @@ impl Energy for NeoHookeanMembrane {
         "neo-hookean-membrane"
     }
 
-    fn n_vertices(&self) -> usize {
-        self.n_vertices
-    }
-
-    fn couplings(&self, out: &mut Vec<(usize, usize)>) {
-        crate::util::triangle_couplings(&self.triangles, out);
-    }
-
-    fn bind(&mut self, pattern: &Arc<SymmetricPattern>) -> Result<(), EvalError> {
-        self.slots = crate::util::triangle_slots(pattern, self.n_vertices, &self.triangles)?;
-        Ok(())
-    }
+    triangle_mesh_methods!();
 
     fn add_to(
         &mut self,
@@ -163,15 +130,14 @@ impl Energy for NeoHookeanMembrane {
         _: Parallelism,
         acc: &mut Accumulator,
     ) -> Result<f64, EvalError> {
-        hinge_core::mesh::check_same_vertex_count(self.n_vertices, x.len())?;
-        let (mu, lambda) = (self.mu, self.lambda);
+        let tri = &self.triangles;
+        hinge_core::mesh::check_same_vertex_count(tri.n_vertices, x.len())?;
+        let (mu, lambda) = (self.material.mu, self.material.lambda);
         let mut energy = 0.0;
-        for (ti, t) in self.triangles.iter().enumerate() {
-            let (b, area) = &self.rest[ti];
-            let w = self.thickness * area;
-            let f: Matrix3x2<f64> = x[t[0]] * b[0].transpose()
-                + x[t[1]] * b[1].transpose()
-                + x[t[2]] * b[2].transpose();
+        for (ti, t) in tri.corners.iter().enumerate() {
+            let (b, area) = &tri.rest[ti];
+            let w = self.material.thickness * area;
+            let f = crate::util::deformation_gradient(x, t, b);
             let c = f.transpose() * f;
             // det C = |f₁ × f₂|² (the squared area ratio): accurate relative to itself down to a crushed
             // triangle, where c₀₀c₁₁ − c₀₁² cancels.
@@ -204,7 +170,7 @@ impl Energy for NeoHookeanMembrane {
                     acc.add_gradient(t[v], &(fs * b[v] * w));
                 }
             }
-            if request.hessian && !self.slots.is_empty() {
+            if request.hessian && !tri.slots.is_empty() {
                 let (s, cm) = if request.definite {
                     (
                         crate::membrane::positive_part(&s),
@@ -223,7 +189,7 @@ impl Energy for NeoHookeanMembrane {
                         + fq[v] * fq[u].transpose() * lambda)
                         * w
                 };
-                crate::util::add_triangle_blocks(acc, &self.slots[ti], t, block);
+                crate::util::add_triangle_blocks(acc, &tri.slots[ti], t, block);
             }
         }
         if !energy.is_finite() {
