@@ -43,14 +43,16 @@
 #![cfg_attr(not(test), warn(clippy::unwrap_used, clippy::expect_used))]
 #![deny(missing_docs)]
 
-/// The four parameter methods of [`hinge_core::energy::Energy`] for a membrane proportional to its Young's
-/// modulus and to its thickness (a field `material: util::PlaneStress`): `young` (Pa, ≥ 0) and `thickness`
-/// (m, > 0). Derivatives from the energy evaluated with the parameter set to 1, then put back
-/// (`PlaneStress::set_young` recomputes μ and λ by the same formulas, so they come back bitwise).
-macro_rules! young_thickness_parameters {
+/// The four parameter methods of [`hinge_core::energy::Energy`] for a plane-stress membrane (a field
+/// `material: util::PlaneStress`) whose energy is proportional to Young's modulus and to the thickness and
+/// linear in the Lamé constants `(μ, λ)` jointly: `young` (Pa, ≥ 0), `poisson` (−1 < ν < 0.5) and
+/// `thickness` (m, > 0). Derivatives from the energy evaluated with the parameter's own factor replaced:
+/// `young` and `thickness` set to 1, and for `poisson` the Lamé constants set to their derivatives
+/// `(∂μ/∂ν, ∂λ/∂ν)` ([`util::PlaneStress::poisson_derivatives`]), then put back bitwise.
+macro_rules! plane_stress_parameters {
     () => {
         fn parameters(&self) -> Vec<hinge_core::energy::Parameter> {
-            ["young", "thickness"]
+            ["young", "poisson", "thickness"]
                 .map(|n| hinge_core::energy::Parameter {
                     name: n.into(),
                     len: 1,
@@ -61,6 +63,7 @@ macro_rules! young_thickness_parameters {
         fn parameter(&self, name: &str) -> Result<Vec<f64>, hinge_core::EvalError> {
             match name {
                 "young" => Ok(vec![self.material.young]),
+                "poisson" => Ok(vec![self.material.poisson]),
                 "thickness" => Ok(vec![self.material.thickness]),
                 _ => Err(hinge_core::energy::unknown_parameter(
                     name,
@@ -78,6 +81,9 @@ macro_rules! young_thickness_parameters {
                 "young" => self
                     .material
                     .set_young(crate::util::scalar_value(name, values, 0.0)?),
+                "poisson" => self
+                    .material
+                    .set_poisson(crate::util::poisson_value(name, values)?),
                 "thickness" => {
                     self.material.thickness =
                         crate::util::scalar_value(name, values, f64::MIN_POSITIVE)?;
@@ -98,9 +104,12 @@ macro_rules! young_thickness_parameters {
             name: &str,
             out: &mut hinge_core::energy::ParameterOutput,
         ) -> Result<(), hinge_core::EvalError> {
-            let (young, thickness) = (self.material.young, self.material.thickness);
+            let kept = self.material;
             match name {
                 "young" => self.material.set_young(1.0),
+                "poisson" => {
+                    (self.material.mu, self.material.lambda) = kept.poisson_derivatives();
+                }
                 "thickness" => self.material.thickness = 1.0,
                 _ => {
                     return Err(hinge_core::energy::unknown_parameter(
@@ -110,8 +119,7 @@ macro_rules! young_thickness_parameters {
                 }
             }
             let r = crate::util::add_proportional_derivatives(self, x, name, out);
-            self.material.set_young(young);
-            self.material.thickness = thickness;
+            self.material = kept;
             r
         }
     };
@@ -225,6 +233,25 @@ pub(crate) mod util {
                 message: format!(
                     "must be finite and at least {}, got {}",
                     hinge_core::error::Num(min),
+                    hinge_core::error::Num(*v)
+                ),
+            }),
+            _ => Err(EvalError::Parameter {
+                name: name.to_string(),
+                message: format!("is one value, {} given", values.len()),
+            }),
+        }
+    }
+
+    /// The one value of the Poisson ratio parameter `name`: finite and in (−1, 0.5), where the plane-stress
+    /// Lamé constants are finite and the material is stable.
+    pub fn poisson_value(name: &str, values: &[f64]) -> Result<f64, EvalError> {
+        match values {
+            [v] if *v > -1.0 && *v < 0.5 => Ok(*v),
+            [v] => Err(EvalError::Parameter {
+                name: name.to_string(),
+                message: format!(
+                    "must be finite and in (-1, 0.5), got {}",
                     hinge_core::error::Num(*v)
                 ),
             }),
@@ -401,6 +428,23 @@ pub(crate) mod util {
         pub fn set_young(&mut self, young: f64) {
             self.young = young;
             (self.mu, self.lambda) = plane_stress_lame(young, self.poisson);
+        }
+
+        /// Sets the Poisson ratio and recomputes the Lamé constants.
+        pub fn set_poisson(&mut self, poisson: f64) {
+            self.poisson = poisson;
+            (self.mu, self.lambda) = plane_stress_lame(self.young, poisson);
+        }
+
+        /// `(∂μ/∂ν, ∂λ/∂ν) = (−Y / (2 (1 + ν)²), Y (1 + ν²) / (1 − ν²)²)`, the derivatives of
+        /// [`plane_stress_lame`] in the Poisson ratio.
+        pub fn poisson_derivatives(&self) -> (f64, f64) {
+            let (y, nu) = (self.young, self.poisson);
+            let one_minus_sq = 1.0 - nu * nu;
+            (
+                -y / (2.0 * (1.0 + nu) * (1.0 + nu)),
+                y * (1.0 + nu * nu) / (one_minus_sq * one_minus_sq),
+            )
         }
     }
 

@@ -62,8 +62,9 @@ impl StvkMembrane {
 }
 
 impl Energy for StvkMembrane {
-    // `young` (Pa, ≥ 0) and `thickness` (m, > 0): the energy is proportional to each.
-    young_thickness_parameters!();
+    // `young` (Pa, ≥ 0), `poisson` and `thickness` (m, > 0): the energy is proportional to Y and h and
+    // linear in (μ, λ).
+    plane_stress_parameters!();
 
     fn name(&self) -> &str {
         "membrane"

@@ -114,8 +114,9 @@ fn collapsed(ti: usize, t: &[usize; 3], det: f64) -> EvalError {
 }
 
 impl Energy for NeoHookeanMembrane {
-    // `young` (Pa, ≥ 0) and `thickness` (m, > 0): the energy is proportional to each.
-    young_thickness_parameters!();
+    // `young` (Pa, ≥ 0), `poisson` and `thickness` (m, > 0): the energy is proportional to Y and h and
+    // linear in (μ, λ).
+    plane_stress_parameters!();
 
     fn name(&self) -> &str {
         "neo-hookean-membrane"

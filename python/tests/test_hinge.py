@@ -1009,6 +1009,9 @@ def test_parameters_are_listed_read_and_set():
     assert s.parameter(bending)[0] == 2e-2
     with pytest.raises(ValueError, match="unknown"):
         s.parameter("membrane.nope")
+    assert names["membrane.poisson"] == 1
+    with pytest.raises(ValueError, match="poisson"):
+        s.set_parameter("membrane.poisson", 0.5)
     with pytest.raises(ValueError, match="young"):
         s.set_parameter("membrane.young", -1.0)
     with pytest.raises(ValueError, match="values"):
@@ -1037,8 +1040,10 @@ def test_adjoint_gradient_matches_finite_differences_of_resolved_equilibria():
     X, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
     T = X + np.stack([0 * V[:, 0], 0.01 * V[:, 0], -0.02 * V[:, 0] ** 2], axis=1)
     loss = lambda Y: float(((Y - T) ** 2).sum())
-    d = hinge.adjoint_gradient(s, X, 2 * (X - T), [bending, "membrane.young", "gravity.g"])
-    for name, i, h in [(bending, 0, 1e-5), ("membrane.young", 0, 1e3), ("gravity.g", 2, 1e-2)]:
+    names = [bending, "membrane.young", "membrane.poisson", "gravity.g"]
+    d = hinge.adjoint_gradient(s, X, 2 * (X - T), names)
+    steps = [(bending, 0, 1e-5), ("membrane.young", 0, 1e3), ("membrane.poisson", 0, 1e-3), ("gravity.g", 2, 1e-2)]
+    for name, i, h in steps:
         base = s.parameter(name)
         vals = []
         for t in (h, -h, 2 * h, -2 * h):
