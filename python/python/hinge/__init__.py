@@ -358,7 +358,10 @@ class System:
     def add_membrane(self, young, poisson, thickness, kind="stvk"):
         """A membrane: ``kind`` "stvk" (St. Venant-Kirchhoff), "corotational" (k/2 A |F - R|^2 with
         k = young * thickness / (1 + poisson), exact Hessian) or "neo-hookean" (compressible neo-Hookean
-        with St. Venant-Kirchhoff's Lame constants, infinite energy at zero area, exact Hessian)."""
+        with St. Venant-Kirchhoff's Lame constants, infinite energy at zero area, exact Hessian). Parameters
+        (``parameters``, ``adjoint_gradient``): ``membrane.young``, ``membrane.poisson`` and
+        ``membrane.thickness`` (``neo-hookean-membrane.…`` for "neo-hookean"), or
+        ``corotational-membrane.stiffness``."""
         self._s.add_membrane(_number("young", young), _number("poisson", poisson),
                              _number("thickness", thickness), _string("kind", kind))
         return self
