@@ -102,20 +102,52 @@ pub trait LinearSolver: Send {
     /// [`LinearError`].
     fn analyze(&mut self, pattern: &LowerCsc) -> Result<(), LinearError>;
 
-    /// Numeric factorization (or preconditioner set-up) for `values` in the analyzed pattern.
+    /// Numeric factorization (or preconditioner set-up) for `values` in the analyzed pattern. A failed
+    /// factorization discards the one before it: `solve` then refuses until a factorization succeeds.
     ///
     /// # Errors
-    /// [`LinearError::NotPositiveDefinite`] for a Cholesky backend on an indefinite matrix, and so on.
+    /// [`LinearError::NotPositiveDefinite`] for a Cholesky backend on an indefinite matrix, and so on;
+    /// [`LinearError::Usage`] before `analyze` or for values whose count is not the pattern's.
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError>;
 
     /// Solves in place: `rhs` becomes `A⁻¹ rhs`.
     ///
     /// # Errors
-    /// [`LinearError`].
+    /// [`LinearError::Usage`] before a successful `factor` or for a right-hand side whose length is not
+    /// the dimension (`rhs` is then untouched); otherwise as the backend says (a non-finite solution is
+    /// [`LinearError::Singular`]).
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError>;
 
     /// How many symbolic analyses this solver has done (to check reuse).
     fn analyses(&self) -> usize;
+}
+
+/// [`LinearError::Usage`] unless the right-hand side's length `len` is the matrix dimension `n`.
+fn check_rhs(len: usize, n: usize) -> Result<(), LinearError> {
+    if len == n {
+        Ok(())
+    } else {
+        Err(LinearError::Usage(format!(
+            "right-hand side of length {len} for a matrix of dimension {n}"
+        )))
+    }
+}
+
+/// [`LinearError::Usage`] unless there are as many `values` as the pattern `p` has entries.
+fn check_values(values: &[f64], p: &LowerCsc) -> Result<(), LinearError> {
+    if values.len() == p.row_idx.len() {
+        Ok(())
+    } else {
+        Err(LinearError::Usage(format!(
+            "{} values for {} entries",
+            values.len(),
+            p.row_idx.len()
+        )))
+    }
+}
+
+fn not_factored() -> LinearError {
+    LinearError::Usage("solve before a successful factor".into())
 }
 
 fn check_finite(x: &[f64]) -> Result<(), LinearError> {
@@ -268,14 +300,8 @@ impl LinearSolver for FaerLlt {
         else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
-        if values.len() != p.row_idx.len() {
-            return Err(LinearError::Usage(format!(
-                "{} values for {} entries",
-                values.len(),
-                p.row_idx.len()
-            )));
-        }
         self.factored = false;
+        check_values(values, p)?;
         self.factor.resize(s.len_val(), 0.0);
         let sym = SymbolicSparseColMatRef::new_checked(p.n, p.n, &p.col_ptr, None, &p.row_idx);
         match s.factorize_numeric_llt(
@@ -300,17 +326,10 @@ impl LinearSolver for FaerLlt {
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
         let par = self.par();
         let (Some(s), Some(stack), true) = (&self.symbolic, &mut self.stack, self.factored) else {
-            return Err(LinearError::Usage(
-                "solve before a successful factor".into(),
-            ));
+            return Err(not_factored());
         };
         let n = rhs.len();
-        if n != s.nrows() {
-            return Err(LinearError::Usage(format!(
-                "right-hand side of length {n} for a matrix of dimension {}",
-                s.nrows()
-            )));
-        }
+        check_rhs(n, s.nrows())?;
         LltRef::new(s, &self.factor).solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(rhs, n, 1),
@@ -402,17 +421,10 @@ impl LinearSolver for FaerLu {
 
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
         let (Some(s), Some(stack), true) = (&self.symbolic, &mut self.stack, self.factored) else {
-            return Err(LinearError::Usage(
-                "solve before a successful factor".into(),
-            ));
+            return Err(not_factored());
         };
         let n = rhs.len();
-        if n != s.nrows() {
-            return Err(LinearError::Usage(format!(
-                "right-hand side of length {n} for a matrix of dimension {}",
-                s.nrows()
-            )));
-        }
+        check_rhs(n, s.nrows())?;
         LuRef::new_unchecked(s, &self.numeric).solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(rhs, n, 1),
@@ -459,11 +471,15 @@ struct JacobiSystem {
     diag: Vec<usize>,
     values: Vec<f64>,
     inv_diag: Vec<f64>,
+    /// Whether `values` and `inv_diag` hold the last successful factorization.
+    factored: bool,
     analyses: usize,
 }
 
 impl JacobiSystem {
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.factored = false;
+        self.pattern = None;
         self.diag = p
             .diagonal_positions()
             .ok_or_else(|| LinearError::Usage("every column must store its diagonal".into()))?;
@@ -473,16 +489,21 @@ impl JacobiSystem {
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        self.factored = false;
         let Some(p) = &self.pattern else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
-        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)
+        jacobi_setup(p, &self.diag, values, &mut self.values, &mut self.inv_diag)?;
+        self.factored = true;
+        Ok(())
     }
 
-    fn pattern(&self) -> Result<&LowerCsc, LinearError> {
-        self.pattern
-            .as_ref()
-            .ok_or_else(|| LinearError::Usage("solve before analyze".into()))
+    /// The pattern, values and inverse diagonal of the last successful factorization.
+    fn factored(&self) -> Result<(&LowerCsc, &[f64], &[f64]), LinearError> {
+        match (&self.pattern, self.factored) {
+            (Some(p), true) => Ok((p, &self.values, &self.inv_diag)),
+            _ => Err(not_factored()),
+        }
     }
 }
 
@@ -493,13 +514,7 @@ fn jacobi_setup(
     out_values: &mut Vec<f64>,
     inv: &mut Vec<f64>,
 ) -> Result<(), LinearError> {
-    if values.len() != p.row_idx.len() {
-        return Err(LinearError::Usage(format!(
-            "{} values for {} entries",
-            values.len(),
-            p.row_idx.len()
-        )));
-    }
+    check_values(values, p)?;
     out_values.clear();
     out_values.extend_from_slice(values);
     inv.clear();
@@ -527,10 +542,8 @@ impl LinearSolver for PcgJacobi {
     }
 
     fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
-        let JacobiSystem {
-            values, inv_diag, ..
-        } = &self.jacobi;
-        let p = self.jacobi.pattern()?;
+        let (p, values, inv_diag) = self.jacobi.factored()?;
+        check_rhs(b.len(), p.n)?;
         let n = p.n;
         let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         let mut x = vec![0.0; n];
@@ -630,10 +643,7 @@ impl LinearSolver for ChebyshevJacobi {
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
         self.jacobi.factor(values)?;
-        let JacobiSystem {
-            values, inv_diag, ..
-        } = &self.jacobi;
-        let p = self.jacobi.pattern()?;
+        let (p, values, inv_diag) = self.jacobi.factored()?;
         // Power iteration on J = I − D⁻¹A from a fixed, non-symmetric start vector.
         let n = p.n;
         let mut v: Vec<f64> = (0..n)
@@ -660,6 +670,8 @@ impl LinearSolver for ChebyshevJacobi {
         // A little safety margin: Chebyshev needs an upper bound of ρ.
         self.rho = (lambda * 1.02).min(0.999_999);
         if lambda >= 1.0 {
+            // No solve with a preconditioner that cannot converge.
+            self.jacobi.factored = false;
             return Err(LinearError::NotConverged {
                 method: "chebyshev-jacobi (Jacobi diverges: spectral radius ≥ 1)",
                 iterations: 0,
@@ -670,10 +682,8 @@ impl LinearSolver for ChebyshevJacobi {
     }
 
     fn solve(&mut self, b: &mut [f64]) -> Result<(), LinearError> {
-        let JacobiSystem {
-            values, inv_diag, ..
-        } = &self.jacobi;
-        let p = self.jacobi.pattern()?;
+        let (p, values, inv_diag) = self.jacobi.factored()?;
+        check_rhs(b.len(), p.n)?;
         let n = p.n;
         let bnorm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
         if bnorm == 0.0 {
@@ -738,15 +748,18 @@ impl LinearSolver for Dense {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        self.chol = None;
         self.pattern = Some(p.clone());
         self.analyses += 1;
         Ok(())
     }
 
     fn factor(&mut self, values: &[f64]) -> Result<(), LinearError> {
+        self.chol = None;
         let Some(p) = &self.pattern else {
             return Err(LinearError::Usage("factor before analyze".into()));
         };
+        check_values(values, p)?;
         let mut a = nalgebra::DMatrix::zeros(p.n, p.n);
         for c in 0..p.n {
             for k in p.col_ptr[c]..p.col_ptr[c + 1] {
@@ -763,11 +776,10 @@ impl LinearSolver for Dense {
     }
 
     fn solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
-        let Some(c) = &self.chol else {
-            return Err(LinearError::Usage(
-                "solve before a successful factor".into(),
-            ));
+        let (Some(p), Some(c)) = (&self.pattern, &self.chol) else {
+            return Err(not_factored());
         };
+        check_rhs(rhs.len(), p.n)?;
         let x = c.solve(&nalgebra::DVector::from_column_slice(rhs));
         rhs.copy_from_slice(x.as_slice());
         check_finite(rhs)

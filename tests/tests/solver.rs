@@ -88,6 +88,79 @@ fn backends_agree_on_spd_systems() {
     }
 }
 
+/// Every backend refuses, with [`LinearError::Usage`] and without panicking, a solve before a factorization,
+/// a factorization before an analysis, values and right-hand sides of the wrong length, and a solve after a
+/// refused or failed factorization (no older one is used); and solves correctly afterwards.
+#[test]
+fn every_backend_refuses_misuse_and_wrong_lengths_with_a_usage_error() {
+    let (red, vals) = spd_system();
+    let n = red.csc.n;
+    let backends: Vec<fn() -> Box<dyn LinearSolver>> = vec![
+        || Box::new(FaerLlt::default()),
+        || Box::new(FaerLu::default()),
+        || Box::new(PcgJacobi::new(1e-12, 10_000)),
+        || Box::new(ChebyshevJacobi::new(1e-12, 100_000)),
+        || Box::new(Dense::default()),
+    ];
+    let usage = |r: Result<(), LinearError>| matches!(r, Err(LinearError::Usage(_)));
+    for make in backends {
+        let mut s = make();
+        let name = s.name();
+        assert!(usage(s.factor(&vals)), "{name}: factor before analyze");
+        assert!(
+            usage(s.solve(&mut vec![1.0; n])),
+            "{name}: solve before analyze"
+        );
+        s.analyze(&red.csc).unwrap();
+        assert!(
+            usage(s.solve(&mut vec![1.0; n])),
+            "{name}: solve before factor"
+        );
+        let longer = [vals.as_slice(), &[1.0]].concat();
+        for values in [&[][..], &vals[..vals.len() - 1], &longer] {
+            // After a good factorization, so that the refusal is seen to discard it.
+            s.factor(&vals).unwrap();
+            assert!(usage(s.factor(values)), "{name}: {} values", values.len());
+            assert!(
+                usage(s.solve(&mut vec![1.0; n])),
+                "{name}: solve after a refused factor"
+            );
+        }
+        // An indefinite matrix: the Cholesky and Jacobi backends refuse it (LU factors it), and a solve
+        // after a refused factorization does not use an older one.
+        let mut indefinite = vals.clone();
+        indefinite[red.diag[5]] = -1e6;
+        s.factor(&vals).unwrap();
+        if s.factor(&indefinite).is_err() {
+            assert!(
+                usage(s.solve(&mut vec![1.0; n])),
+                "{name}: solve after a failed factor"
+            );
+        } else {
+            assert_eq!(name, "faer-lu");
+        }
+        s.factor(&vals).unwrap();
+        for len in [0, n - 1, n + 1] {
+            let mut b = vec![1.0; len];
+            assert!(
+                usage(s.solve(&mut b)),
+                "{name}: right-hand side of length {len}"
+            );
+            assert_eq!(
+                b,
+                vec![1.0; len],
+                "{name}: a refused right-hand side is left as it was"
+            );
+        }
+        let b: Vec<f64> = (0..n).map(|i| (i % 7) as f64 - 3.0).collect();
+        let mut x = b.clone();
+        s.solve(&mut x).unwrap();
+        let mut ax = vec![0.0; n];
+        red.csc.mul(&vals, &x, &mut ax);
+        assert!(rel_error(&ax, &b) < 1e-9, "{name}: {}", rel_error(&ax, &b));
+    }
+}
+
 #[test]
 fn cholesky_detects_indefinite_matrices_and_lu_solves_them() {
     let (red, mut vals) = spd_system();
