@@ -27,6 +27,49 @@ pub struct LowerCsc {
 }
 
 impl LowerCsc {
+    /// Checks the structure every backend relies on: `n + 1` column pointers from 0 to the number of row
+    /// indices, never decreasing, and in each column row indices strictly increasing, from the column's own
+    /// index (lower triangle) to below `n`.
+    ///
+    /// # Errors
+    /// [`LinearError::Usage`] naming the first column that breaks it.
+    pub fn check(&self) -> Result<(), LinearError> {
+        let cp = &self.col_ptr;
+        if cp.len() != self.n + 1
+            || cp.first() != Some(&0)
+            || cp.last() != Some(&self.row_idx.len())
+        {
+            return Err(LinearError::Usage(format!(
+                "a pattern of dimension {} needs {} column pointers from 0 to its {} row indices, got {}",
+                self.n,
+                self.n + 1,
+                self.row_idx.len(),
+                cp.len()
+            )));
+        }
+        for c in 0..self.n {
+            if cp[c] > cp[c + 1] {
+                return Err(LinearError::Usage(format!(
+                    "column {c}'s pointers decrease ({} > {})",
+                    cp[c],
+                    cp[c + 1]
+                )));
+            }
+            let rows = &self.row_idx[cp[c]..cp[c + 1]];
+            let mut below = c;
+            for (k, &r) in rows.iter().enumerate() {
+                if r < below || (k > 0 && r == below) || r >= self.n {
+                    return Err(LinearError::Usage(format!(
+                        "column {c}: row {r} is not in increasing order within {c}..{} (lower triangle)",
+                        self.n
+                    )));
+                }
+                below = r;
+            }
+        }
+        Ok(())
+    }
+
     /// Position of each column's diagonal entry (every column must store its diagonal).
     pub fn diagonal_positions(&self) -> Option<Vec<usize>> {
         (0..self.n)
@@ -247,6 +290,7 @@ impl LinearSolver for FaerLlt {
     }
 
     fn analyze(&mut self, pattern: &LowerCsc) -> Result<(), LinearError> {
+        pattern.check()?;
         let sym = SymbolicSparseColMatRef::new_checked(
             pattern.n,
             pattern.n,
@@ -375,6 +419,7 @@ impl LinearSolver for FaerLu {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        p.check()?;
         // The full symmetric matrix: its CSR layout is its CSC layout too.
         let full = CsrLayout::from_lower(p.n, &p.col_ptr, &p.row_idx);
         let sym =
@@ -478,11 +523,11 @@ struct JacobiSystem {
 
 impl JacobiSystem {
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
-        self.factored = false;
-        self.pattern = None;
+        p.check()?;
         self.diag = p
             .diagonal_positions()
             .ok_or_else(|| LinearError::Usage("every column must store its diagonal".into()))?;
+        self.factored = false;
         self.pattern = Some(p.clone());
         self.analyses += 1;
         Ok(())
@@ -748,6 +793,7 @@ impl LinearSolver for Dense {
     }
 
     fn analyze(&mut self, p: &LowerCsc) -> Result<(), LinearError> {
+        p.check()?;
         self.chol = None;
         self.pattern = Some(p.clone());
         self.analyses += 1;

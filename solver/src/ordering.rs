@@ -63,25 +63,11 @@ struct Graph {
 
 impl Graph {
     fn of(pattern: &LowerCsc, block: usize) -> Result<Self, LinearError> {
+        pattern.check()?;
         let n = pattern.n / block;
-        if pattern.col_ptr.len() != pattern.n + 1
-            || pattern.col_ptr.first() != Some(&0)
-            || pattern.col_ptr.last() != Some(&pattern.row_idx.len())
-            || pattern.col_ptr.windows(2).any(|w| w[0] > w[1])
-        {
-            return Err(LinearError::Usage(
-                "pattern's column pointers do not match its rows".into(),
-            ));
-        }
         let mut edges = Vec::with_capacity(2 * pattern.row_idx.len() / (block * block) + 1);
         for j in 0..pattern.n {
             for &i in &pattern.row_idx[pattern.col_ptr[j]..pattern.col_ptr[j + 1]] {
-                if i >= pattern.n {
-                    return Err(LinearError::Usage(format!(
-                        "row {i} in a pattern of dimension {}",
-                        pattern.n
-                    )));
-                }
                 let (a, b) = (i / block, j / block);
                 if a != b {
                     edges.push((a, b));

@@ -11,7 +11,9 @@ use hinge_core::nalgebra::Vector3;
 use hinge_core::shapes::{icosphere, random_permutation, renumber, sliver_sheet, torus};
 use hinge_energies::bending::TanBending;
 use hinge_energies::spring::MassSpring;
-use hinge_solver::linear::{Dense, FaerLlt, LinearError, LinearSolver, LowerCsc};
+use hinge_solver::linear::{
+    ChebyshevJacobi, Dense, FaerLlt, FaerLu, LinearError, LinearSolver, LowerCsc, PcgJacobi,
+};
 use hinge_solver::newton::Reduced;
 use hinge_solver::ordering::{FillOrdering, nested_dissection};
 use hinge_tests::*;
@@ -296,12 +298,65 @@ fn malformed_patterns_are_errors() {
             row_idx: vec![0, 7],
         },
     ];
+    // Rows out of order, repeated, or above the diagonal (upper triangle).
+    let more = [
+        LowerCsc {
+            n: 2,
+            col_ptr: vec![0, 2, 3],
+            row_idx: vec![1, 0, 1],
+        },
+        LowerCsc {
+            n: 2,
+            col_ptr: vec![0, 2, 3],
+            row_idx: vec![0, 0, 1],
+        },
+        LowerCsc {
+            n: 2,
+            col_ptr: vec![0, 1, 3],
+            row_idx: vec![0, 0, 1],
+        },
+    ];
     for p in &bad {
         assert!(
             matches!(nested_dissection(p), Err(LinearError::Usage(_))),
             "{p:?}"
         );
     }
+    // Every backend refuses each at analysis, with a typed error instead of a panic inside faer or an
+    // index out of range, and still analyzes a good pattern afterwards.
+    let good = LowerCsc {
+        n: 2,
+        col_ptr: vec![0, 2, 3],
+        row_idx: vec![0, 1, 1],
+    };
+    for p in bad.iter().chain(&more) {
+        assert!(matches!(p.check(), Err(LinearError::Usage(_))), "{p:?}");
+        let backends: [Box<dyn LinearSolver>; 6] = [
+            Box::new(FaerLlt::default()),
+            Box::new(FaerLlt::with_ordering(FillOrdering::Amd)),
+            Box::new(FaerLu::default()),
+            Box::new(PcgJacobi::new(1e-12, 100)),
+            Box::new(ChebyshevJacobi::new(1e-12, 100)),
+            Box::new(Dense::default()),
+        ];
+        for mut s in backends {
+            assert!(
+                matches!(s.analyze(p), Err(LinearError::Usage(_))),
+                "{}: {p:?}",
+                s.name()
+            );
+            s.analyze(&good).unwrap();
+            s.factor(&[2.0, -1.0, 2.0]).unwrap();
+            let mut x = vec![1.0, 1.0];
+            s.solve(&mut x).unwrap();
+            assert!(
+                (x[0] - 1.0).abs() < 1e-10 && (x[1] - 1.0).abs() < 1e-10,
+                "{}: {x:?}",
+                s.name()
+            );
+        }
+    }
+    good.check().unwrap();
 }
 
 /// On a closed shell of `shell-drop`'s size nested dissection leaves less fill than AMD, on the drape's
