@@ -39,12 +39,15 @@ impl LowerCsc {
             || cp.first() != Some(&0)
             || cp.last() != Some(&self.row_idx.len())
         {
+            let got = match (cp.first(), cp.last()) {
+                (Some(a), Some(b)) => format!("{} from {a} to {b}", cp.len()),
+                _ => "none".into(),
+            };
             return Err(LinearError::Usage(format!(
-                "a pattern of dimension {} needs {} column pointers from 0 to its {} row indices, got {}",
+                "a pattern of dimension {} needs {} column pointers from 0 to its {} row indices, got {got}",
                 self.n,
                 self.n + 1,
                 self.row_idx.len(),
-                cp.len()
             )));
         }
         for c in 0..self.n {

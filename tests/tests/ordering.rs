@@ -330,7 +330,15 @@ fn malformed_patterns_are_errors() {
         row_idx: vec![0, 1, 1],
     };
     for p in bad.iter().chain(&more) {
-        assert!(matches!(p.check(), Err(LinearError::Usage(_))), "{p:?}");
+        // The message says what is wrong: the pointers, or the first column whose rows are.
+        match p.check() {
+            Err(e @ LinearError::Usage(_)) => {
+                let m = e.to_string();
+                assert!(m.contains("column pointers") || m.contains(": row "), "{m}");
+                println!("{m}");
+            }
+            other => panic!("{p:?}: {other:?}"),
+        }
         let backends: [Box<dyn LinearSolver>; 6] = [
             Box::new(FaerLlt::default()),
             Box::new(FaerLlt::with_ordering(FillOrdering::Amd)),
