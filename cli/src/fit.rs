@@ -7,6 +7,7 @@
 //! |---|---|---|
 //! | `material.young` | bending `k` (∝ Y, when k comes from the material), membrane (∝ Y) | positive |
 //! | `material.thickness` | bending `k` (∝ h³), membrane (∝ h) | positive |
+//! | `material.poisson` | bending `k` (∝ 1/(1 − ν²)), membrane (its ν; the co-rotational one's stiffness ∝ 1/(1 + ν)) | in (−1, 0.5) |
 //! | `material.density` | gravity (∝ ρ: the weight per area) | positive |
 //! | `bending.params.NAME` | the custom ψ's parameter (scalar or per hinge) | positive if its start is |
 //! | `bending.rest_angles` | the rest angles θ̄, one per hinge | any sign |
@@ -20,7 +21,7 @@ use std::path::{Path, PathBuf};
 use hinge_core::meshio::FileNumbering;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::{ElementNames, TriMesh};
-use hinge_energies::membrane::MembraneModel;
+use hinge_energies::membrane::{MembraneModel, POISSON_BOUNDS};
 use hinge_solver::adjoint::{AdjointError, Fit, FitOptions, FitVariable, Link, TargetLoss};
 use hinge_solver::newton::{Newton, NewtonParams};
 use hinge_solver::statics::continued_start;
@@ -29,7 +30,7 @@ use crate::run::{Built, STATIC_ITERATIONS, build};
 use crate::scene::Scene;
 
 /// The keys `hinge fit` accepts (`bending.params.NAME` for any custom-ψ parameter).
-pub const KEYS: &str = "material.young, material.thickness, material.density, bending.params.NAME, bending.rest_angles";
+pub const KEYS: &str = "material.young, material.thickness, material.poisson, material.density, bending.params.NAME, bending.rest_angles";
 
 /// Arguments of `hinge fit`.
 #[derive(clap::Args, Debug, Clone)]
@@ -39,8 +40,8 @@ pub struct FitArgs {
     /// The measured shape: a mesh file (OBJ, OFF, PLY or STL) with the scene mesh's vertices and faces.
     #[arg(long)]
     pub target: PathBuf,
-    /// Scene keys to fit, comma-separated: material.young, material.thickness, material.density,
-    /// bending.params.NAME, bending.rest_angles.
+    /// Scene keys to fit, comma-separated: material.young, material.thickness, material.poisson,
+    /// material.density, bending.params.NAME, bending.rest_angles.
     #[arg(long, value_delimiter = ',', required = true)]
     pub fit: Vec<String>,
     /// Mesh resolution, as for `hinge run`.
@@ -141,6 +142,7 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         }
     };
     let mut links = Vec::new();
+    let mut range = None;
     let (start, positive) = match key {
         "material.young" => {
             if k_from_material {
@@ -159,6 +161,28 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         "material.density" => {
             links.push(power("gravity.g", 1.0));
             (positive_start(m.density)?, true)
+        }
+        "material.poisson" => {
+            // k ∝ 1/(1 − ν²); the co-rotational membrane's stiffness ∝ 1/(1 + ν); the StVK and neo-Hookean
+            // membranes take ν itself.
+            let inverse = |parameter: &str, coefficients: [f64; 3]| Link::Quadratic {
+                parameter: parameter.into(),
+                coefficients,
+                exponent: -1.0,
+            };
+            if k_from_material {
+                links.push(inverse("bending.k", [1.0, 0.0, -1.0]));
+            }
+            links.push(match model {
+                MembraneModel::Corotational => {
+                    inverse(model.stiffness_parameter(), [1.0, 1.0, 0.0])
+                }
+                _ => Link::Value {
+                    parameter: format!("{}.poisson", model.energy_name()),
+                },
+            });
+            range = Some(POISSON_BOUNDS);
+            (vec![m.poisson], false)
         }
         "bending.rest_angles" => {
             links.push(Link::Value {
@@ -208,6 +232,7 @@ fn variable(scene: &Scene, b: &Built, key: &str) -> Result<FitVariable, String> 
         name: key.to_string(),
         start,
         positive,
+        range,
         links,
     })
 }
@@ -440,7 +465,7 @@ fn fitted_toml(
     for (key, values) in &fitted.values {
         let scalar = values.len() == 1;
         match key.as_str() {
-            "material.young" | "material.thickness" | "material.density" => {
+            "material.young" | "material.thickness" | "material.poisson" | "material.density" => {
                 let name = &key["material.".len()..];
                 material.insert(name.into(), toml::Value::Float(values[0]));
             }

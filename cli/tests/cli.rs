@@ -3365,6 +3365,76 @@ fn fit_recovers_keys_from_static_shapes() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let c = json["fitted"]["bending.params.c"].as_f64().unwrap();
     assert!((c / 0.02 - 1.0).abs() < 1e-3, "{c}");
+    // Poisson's ratio (truth 0.3), with the StVK membrane (which takes ν) and the co-rotational one (whose
+    // stiffness ∝ 1/(1 + ν)), from starts on the truth's side of 0 (the bending stiffness depends on ν²),
+    // one at the upper bound's edge: fitted inside (−1, 0.5), written to the fitted scene.
+    assert!(scene_text.contains("poisson = 0.3\n"));
+    let corotational_text = scene_text.replace(
+        "poisson = 0.3\n",
+        "poisson = 0.3\nmembrane = \"corotational\"\n",
+    );
+    let corotational = d("corotational.toml");
+    std::fs::write(&corotational, &corotational_text).unwrap();
+    let out = hinge(&[
+        "run",
+        &corotational,
+        "--static",
+        "--out",
+        &d("corotational_target"),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (text, shape, label) in [
+        (&scene_text, target.clone(), "stvk"),
+        (
+            &corotational_text,
+            d("corotational_target/static.obj"),
+            "corotational",
+        ),
+    ] {
+        for start in ["0.15", "0.499"] {
+            let path = d(&format!("poisson_{label}_{start}.toml"));
+            std::fs::write(
+                &path,
+                text.replace("poisson = 0.3\n", &format!("poisson = {start}\n")),
+            )
+            .unwrap();
+            let fitted = d(&format!("poisson_fit_{label}_{start}"));
+            let out = hinge(&[
+                "fit",
+                &path,
+                "--target",
+                &shape,
+                "--fit",
+                "material.poisson",
+                "--out",
+                &fitted,
+            ]);
+            assert!(
+                out.status.success(),
+                "{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+            let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let nu = json["fitted"]["material.poisson"].as_f64().unwrap();
+            println!(
+                "beam3 ({label}) from nu = {start}: {nu:.9}, {} equilibria",
+                json["equilibria"]
+            );
+            assert!((nu - 0.3).abs() < 1e-4, "{label} {start}: {nu}");
+            assert!(json["loss"].as_f64().unwrap() < 1e-12);
+            let toml = std::fs::read_to_string(format!("{fitted}/fitted.toml")).unwrap();
+            let written: f64 = toml
+                .lines()
+                .find_map(|l| l.strip_prefix("poisson = "))
+                .and_then(|v| v.trim().parse().ok())
+                .unwrap_or_else(|| panic!("{toml}"));
+            assert_eq!(written, nu);
+        }
+    }
     // Rest angles (one per hinge): a few iterations lower the loss and write the fitted field beside the
     // scene.
     let out = hinge(&[
@@ -3465,6 +3535,17 @@ fn fit_recovers_keys_from_static_shapes() {
                 &target,
                 "--fit",
                 "material.young,material.thickness",
+            ],
+            "not separately identifiable",
+        ),
+        (
+            vec![
+                "fit",
+                &stiff,
+                "--target",
+                &target,
+                "--fit",
+                "material.poisson,material.young",
             ],
             "not separately identifiable",
         ),

@@ -293,6 +293,16 @@ pub trait Energy: Send + Sync {
         Err(unknown_parameter(name, &self.parameters()))
     }
 
+    /// The open interval `(lower, upper)`, both ends finite, that every value of parameter `name` must lie
+    /// in when the energy requires one (a membrane's Poisson ratio: `(−1, 0.5)`), so that a fit can keep it
+    /// there (`hinge_solver::adjoint::FitVariable::range`). `None` for a
+    /// parameter without one (any finite value, or a positive one) and for a name not in
+    /// [`Energy::parameters`]. Default: `None`.
+    fn parameter_bounds(&self, name: &str) -> Option<(f64, f64)> {
+        let _ = name;
+        None
+    }
+
     /// Sets parameter `name` (as many values as [`Parameter::len`], finite; an energy may require more, such
     /// as positivity).
     ///
@@ -1178,6 +1188,16 @@ impl System {
     pub fn parameter(&self, name: &str) -> Result<Vec<f64>, EvalError> {
         let (i, own) = self.find_parameter(name)?;
         self.terms[i].parameter(&own)
+    }
+
+    /// The open interval parameter `TERM.NAME`'s values must lie in, if its term requires one (see
+    /// [`Energy::parameter_bounds`]).
+    ///
+    /// # Errors
+    /// [`EvalError::Parameter`] for an unknown name (the message lists the known ones).
+    pub fn parameter_bounds(&self, name: &str) -> Result<Option<(f64, f64)>, EvalError> {
+        let (i, own) = self.find_parameter(name)?;
+        Ok(self.terms[i].parameter_bounds(&own))
     }
 
     /// Sets parameter `TERM.NAME` (see [`Energy::set_parameter`]).

@@ -72,6 +72,10 @@ macro_rules! plane_stress_parameters {
             }
         }
 
+        fn parameter_bounds(&self, name: &str) -> Option<(f64, f64)> {
+            (name == "poisson").then_some(crate::util::POISSON_BOUNDS)
+        }
+
         fn set_parameter(
             &mut self,
             name: &str,
@@ -243,11 +247,14 @@ pub(crate) mod util {
         }
     }
 
-    /// The one value of the Poisson ratio parameter `name`: finite and in (−1, 0.5), where the plane-stress
-    /// Lamé constants are finite and the material is stable.
+    pub use crate::membrane::POISSON_BOUNDS;
+
+    /// The one value of the Poisson ratio parameter `name`: finite and in [`POISSON_BOUNDS`] (−1, 0.5),
+    /// where the plane-stress Lamé constants are finite and the material is stable.
     pub fn poisson_value(name: &str, values: &[f64]) -> Result<f64, EvalError> {
+        let (lower, upper) = POISSON_BOUNDS;
         match values {
-            [v] if *v > -1.0 && *v < 0.5 => Ok(*v),
+            [v] if *v > lower && *v < upper => Ok(*v),
             [v] => Err(EvalError::Parameter {
                 name: name.to_string(),
                 message: format!(
@@ -489,8 +496,8 @@ pub(crate) mod util {
     ) -> Result<(), EvalError> {
         if young >= 0.0
             && young.is_finite()
-            && poisson > -1.0
-            && poisson < 0.5
+            && poisson > POISSON_BOUNDS.0
+            && poisson < POISSON_BOUNDS.1
             && thickness > 0.0
             && thickness.is_finite()
         {

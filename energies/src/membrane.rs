@@ -173,6 +173,13 @@ mod tests {
     }
 }
 
+/// The open interval every membrane's Poisson ratio `ν` lies in, `(−1, 0.5)`: the plane-stress Lamé
+/// constants are finite and the material is stable there. [`Energy::parameter_bounds`] of a membrane's
+/// `poisson` parameter.
+///
+/// [`Energy::parameter_bounds`]: hinge_core::energy::Energy::parameter_bounds
+pub const POISSON_BOUNDS: (f64, f64) = (-1.0, 0.5);
+
 /// Which membrane model a scene or a binding asks for by name: the one place the names, the energies'
 /// own names and their stiffness parameters are kept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -1173,7 +1173,8 @@ fn fit_info<'py>(
 /// `fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9,
 /// membrane_continuation=True)`: the named system parameters (`TERM.NAME`) that make the equilibrium match
 /// `target` (shape (n, 3); loss: the sum of squared vertex distances), by L-BFGS with adjoint gradients; a
-/// parameter whose values are all positive is fitted on a log scale. The first equilibrium goes through the
+/// parameter whose values are all positive is fitted on a log scale, one an energy bounds (a membrane's
+/// `poisson`) inside its interval. The first equilibrium goes through the
 /// membrane continuation of `solve_static` when `membrane_continuation` is set; the fit's solves start from
 /// it. Returns `(X, info)` with `info["fitted"]` the values; the system keeps them.
 #[pyfunction]
@@ -1220,7 +1221,9 @@ pub fn fit<'py>(
             return Err(value_error(format!("parameter `{name}` given twice")));
         }
         let start = sys.parameter(name).map_err(value_error)?;
-        let positive = start.iter().all(|v| *v > 0.0);
+        // A bounded parameter (a Poisson ratio) is fitted inside its interval, a positive one on a log scale.
+        let range = sys.parameter_bounds(name).map_err(value_error)?;
+        let positive = range.is_none() && start.iter().all(|v| *v > 0.0);
         variables.push(FitVariable {
             name: name.clone(),
             links: vec![if positive {
@@ -1235,6 +1238,7 @@ pub fn fit<'py>(
             }],
             start,
             positive,
+            range,
         });
     }
     let (r, signal) = interruptible(py, |stop| -> Result<(FitResult, usize), String> {

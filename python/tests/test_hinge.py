@@ -1149,6 +1149,38 @@ def test_fit_scene_recovers_young_s_modulus(tmp_path):
         hinge.fit_scene(str(wrong), 3, ["material.young"])
 
 
+
+def test_poisson_s_ratio_is_fitted_inside_its_interval(tmp_path):
+    # A hammock: an irregular renumbered sheet pinned along two opposite edges sags under its weight, held by
+    # its membrane, whose Poisson ratio (truth 0.3) sets how it contracts across. Fitted back from 0.1 and
+    # from just below the upper bound 0.5, every trial inside (-1, 0.5) (a value outside would be refused by
+    # the membrane at the first trial, not halved).
+    V, F = sheet(8, 8, 7, jitter=0.1)
+    V = V * [0.3, 0.3, 1.0]
+    s = hinge.System(V, F).add_bending(energy="discrete-shells", k=1e-6)
+    s.add_membrane(1e5, 0.3, 1e-3).add_gravity(0.5)
+    s.pin(np.flatnonzero((V[:, 0] <= V[:, 0].min() + 1e-9) | (V[:, 0] >= V[:, 0].max() - 1e-9)))
+    T, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
+    assert T[:, 2].min() < -1e-3
+    for start in (0.1, 0.499):
+        s.set_parameter("membrane.poisson", start)
+        X, info = hinge.fit(s, V, T, ["membrane.poisson"], max_iterations=100)
+        print("membrane.poisson from", start, "->", info["fitted"]["membrane.poisson"], info["equilibria"], "equilibria")
+        assert info["fitted"]["membrane.poisson"] == pytest.approx(0.3, abs=1e-4)
+        assert s.parameter("membrane.poisson")[0] == info["fitted"]["membrane.poisson"]
+        assert np.abs(X - T).max() < 1e-6
+    # The scene key: the strip's plate stiffness depends on nu through 1/(1 - nu^2), its membrane takes nu.
+    good, wrong = tmp_path / "good.toml", tmp_path / "wrong.toml"
+    good.write_text(STRIP.replace("YOUNG", "2e8"))
+    wrong.write_text(STRIP.replace("YOUNG", "2e8").replace("poisson = 0.3", "poisson = 0.15"))
+    V, F, _, _ = hinge.run_scene(str(good), frames=1)
+    T, _ = hinge.fit_scene(str(good), V, ["material.poisson"], max_iterations=0)
+    X, info = hinge.fit_scene(str(wrong), T, ["material.poisson"])
+    assert info["fitted"]["material.poisson"] == pytest.approx(0.3, abs=1e-4)
+    with pytest.raises(ValueError, match="not separately identifiable"):
+        hinge.fit_scene(str(wrong), T, ["material.poisson", "material.young"])
+
+
 def test_smoothed_contact_is_c2_matches_finite_differences_and_rejects_bad_lengths():
     V, F = sheet(4, 4, 12, jitter=0.05)
     delta, eps, kappa = 0.05, 0.03, 300.0

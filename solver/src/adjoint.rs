@@ -16,7 +16,8 @@
 //! energy's elements ([`hinge_core::energy::Energy::add_parameter_derivatives`]).
 //!
 //! [`Fit`] minimises a loss over chosen parameters with L-BFGS on `s = ln u` (positive parameters stay
-//! positive), each evaluation an equilibrium solved by [`Newton`] from the previous one and its gradient
+//! positive), on `s = ln((u − lo)/(hi − u))` for a variable bounded to `(lo, hi)` (a Poisson ratio stays
+//! in `(−1, 0.5)`), or on `u` itself; each evaluation an equilibrium solved by [`Newton`] from the previous one and its gradient
 //! by the adjoint; see [`Fit::run`].
 
 use hinge_core::EvalError;
@@ -397,13 +398,15 @@ pub type LossFn<'a> = dyn FnMut(&[Vector3<f64>], &mut [f64]) -> Result<f64, Adjo
 /// field variable has one value per parameter entry, a scalar one acts on every entry.
 ///
 /// A parameter's value is its value when the [`Fit`] was made (`p₀`), times the factor `(u/u₀)^e` of every
-/// power link to it, with `p₀` replaced by `u` when a value link sets it:
+/// power link and `(q(u)/q(u₀))^e` of every quadratic link to it, with `p₀` replaced by `u` when a value
+/// link sets it:
 ///
 /// ```text
-/// p = (u_value or p₀) · Π_power (u / u₀)^e
+/// p = (u_value or p₀) · Π_power (u / u₀)^e · Π_quadratic (q(u) / q(u₀))^e
 /// ```
 ///
-/// so Young's modulus and the thickness both scale a bending stiffness `k ∝ Y h³` (exponents 1 and 3).
+/// so Young's modulus and the thickness both scale a bending stiffness `k ∝ Y h³` (exponents 1 and 3), and
+/// Poisson's ratio scales it as `1/(1 − ν²)` (a quadratic link with `q = 1 − ν²`, exponent −1).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Link {
     /// The parameter scales as `(u/u₀)^exponent` (a positive variable).
@@ -418,13 +421,38 @@ pub enum Link {
         /// The system parameter.
         parameter: String,
     },
+    /// The parameter scales as `(q(u)/q(u₀))^exponent`, `q(u) = a + b u + c u²` with `coefficients =
+    /// [a, b, c]`: positive at the start value ([`Fit::new`] checks), and where it is not positive at a
+    /// trial value that trial is refused as out of the domain. A plate's stiffness `∝ 1/(1 − ν²)` in
+    /// Poisson's ratio is `[1, 0, −1]` with exponent −1, a stiffness `∝ 1/(1 + ν)` is `[1, 1, 0]` with −1.
+    Quadratic {
+        /// The system parameter.
+        parameter: String,
+        /// `[a, b, c]` of `q(u) = a + b u + c u²`.
+        coefficients: [f64; 3],
+        /// The power of `q(u)/q(u₀)`.
+        exponent: f64,
+    },
 }
 
 impl Link {
     /// The parameter it sets.
     pub fn parameter(&self) -> &str {
         match self {
-            Link::Power { parameter, .. } | Link::Value { parameter } => parameter,
+            Link::Power { parameter, .. }
+            | Link::Value { parameter }
+            | Link::Quadratic { parameter, .. } => parameter,
+        }
+    }
+
+    /// `q(u)` of a quadratic link (`None` for the others).
+    fn quadratic(&self, u: f64) -> Option<f64> {
+        match self {
+            Link::Quadratic {
+                coefficients: [a, b, c],
+                ..
+            } => Some(a + u * (b + c * u)),
+            _ => None,
         }
     }
 }
@@ -434,12 +462,46 @@ impl Link {
 pub struct FitVariable {
     /// Its name (a scene key, say).
     pub name: String,
-    /// Starting values: one for a scalar, one per entry for a field. Positive when `positive`.
+    /// Starting values: one for a scalar, one per entry for a field. Positive when `positive`, inside
+    /// `range` when it is set.
     pub start: Vec<f64>,
     /// Fitted as `u = exp(s)` (stays positive) rather than directly.
     pub positive: bool,
+    /// Fitted as `u = lo + (hi − lo)/(1 + exp(−s))` inside the open interval `(lo, hi)` (both finite,
+    /// `lo < hi`; not with `positive`): a parameter an energy bounds ([`System::parameter_bounds`], a Poisson
+    /// ratio) stays inside its interval. `None`: as `positive` says.
+    pub range: Option<(f64, f64)>,
     /// The system parameters it sets.
     pub links: Vec<Link>,
+}
+
+impl FitVariable {
+    /// The optimisation variable `s` of value `u`.
+    fn s_of(&self, u: f64) -> f64 {
+        match self.range {
+            Some((lo, hi)) => ((u - lo) / (hi - u)).ln(),
+            None if self.positive => u.ln(),
+            None => u,
+        }
+    }
+
+    /// The value `u` of optimisation variable `s`.
+    fn value_of(&self, s: f64) -> f64 {
+        match self.range {
+            Some((lo, hi)) => lo + (hi - lo) / (1.0 + (-s).exp()),
+            None if self.positive => s.exp(),
+            None => s,
+        }
+    }
+
+    /// `du/ds` at value `u`.
+    fn du_ds(&self, u: f64) -> f64 {
+        match self.range {
+            Some((lo, hi)) => (u - lo) * (hi - u) / (hi - lo),
+            None if self.positive => u,
+            None => 1.0,
+        }
+    }
 }
 
 /// Options of a [`Fit`].
@@ -635,7 +697,8 @@ impl<'a> Fit<'a> {
     ///
     /// # Errors
     /// [`AdjointError::Setup`] naming a variable with no links, a link to an unknown parameter or of the wrong
-    /// length, or a non-positive start of a positive variable.
+    /// length, a non-positive start of a positive variable, a start outside a variable's range or a bad
+    /// range, a quadratic link not positive at the start.
     pub fn new(
         system: &System,
         pins: &Pins,
@@ -652,15 +715,29 @@ impl<'a> Fit<'a> {
                     v.name
                 )));
             }
+            if let Some((lo, hi)) = v.range
+                && !(lo.is_finite() && hi.is_finite() && lo < hi && !v.positive)
+            {
+                return Err(AdjointError::Setup(format!(
+                    "`{}`: range ({lo}, {hi}) must have finite ends, the lower below the upper, and the \
+                     variable must not also be positive",
+                    v.name
+                )));
+            }
+            let inside = |s: f64| v.range.is_none_or(|(lo, hi)| s > lo && s < hi);
             if let Some(bad) = v
                 .start
                 .iter()
-                .find(|s| !s.is_finite() || (v.positive && **s <= 0.0))
+                .find(|s| !s.is_finite() || (v.positive && **s <= 0.0) || !inside(**s))
             {
                 return Err(AdjointError::Setup(format!(
                     "`{}`: start value {bad} must be finite{}",
                     v.name,
-                    if v.positive { " and positive" } else { "" }
+                    match v.range {
+                        Some((lo, hi)) => format!(" and in ({lo}, {hi})"),
+                        None if v.positive => " and positive".into(),
+                        None => String::new(),
+                    }
                 )));
             }
             for l in &v.links {
@@ -685,6 +762,23 @@ impl<'a> Fit<'a> {
                         v.name,
                         l.parameter()
                     )));
+                }
+                if let Link::Quadratic { exponent, .. } = l {
+                    if !exponent.is_finite() {
+                        return Err(AdjointError::Setup(format!(
+                            "`{}`: the quadratic link to `{}` has exponent {exponent}, not finite",
+                            v.name,
+                            l.parameter()
+                        )));
+                    }
+                    let mut q = v.start.iter().map(|&u| l.quadratic(u).unwrap_or(f64::NAN));
+                    if let Some(bad) = q.find(|q| !(*q > 0.0 && q.is_finite())) {
+                        return Err(AdjointError::Setup(format!(
+                            "`{}`: the quadratic link to `{}` is {bad} at the start, not positive",
+                            v.name,
+                            l.parameter()
+                        )));
+                    }
                 }
             }
         }
@@ -738,11 +832,7 @@ impl<'a> Fit<'a> {
     fn to_s(&self) -> Vec<f64> {
         self.variables
             .iter()
-            .flat_map(|v| {
-                v.start
-                    .iter()
-                    .map(move |&u| if v.positive { u.ln() } else { u })
-            })
+            .flat_map(|v| v.start.iter().map(move |&u| v.s_of(u)))
             .collect()
     }
 
@@ -753,7 +843,7 @@ impl<'a> Fit<'a> {
             .map(|v| {
                 let u: Vec<f64> = s[k..k + v.start.len()]
                     .iter()
-                    .map(|&si| if v.positive { si.exp() } else { si })
+                    .map(|&si| v.value_of(si))
                     .collect();
                 k += v.start.len();
                 u
@@ -780,6 +870,12 @@ impl<'a> Fit<'a> {
                                 Link::Power { exponent, .. } => {
                                     factor[i] *= (uv[j] / v.start[j]).powf(*exponent);
                                 }
+                                Link::Quadratic { exponent, .. } => {
+                                    let q = |u| l.quadratic(u).unwrap_or(f64::NAN);
+                                    // Not positive: NaN, which `apply` refuses.
+                                    let r = q(uv[j]) / q(v.start[j]);
+                                    factor[i] *= if r > 0.0 { r.powf(*exponent) } else { f64::NAN };
+                                }
                                 Link::Value { .. } => value[i] = uv[j],
                             }
                         }
@@ -792,22 +888,38 @@ impl<'a> Fit<'a> {
     }
 
     /// Sets every linked parameter from the variables' values `u`.
+    ///
+    /// # Errors
+    /// [`AdjointError::Eval`] with [`EvalError::Parameter`] for a value that is not finite (a quadratic
+    /// link where `q` is not positive, an overflow), whatever the energy checks itself; the energies' own.
     fn apply(&self, system: &mut System, u: &[Vec<f64>]) -> Result<(), AdjointError> {
         for ((name, _), (values, _)) in self.linked.iter().zip(self.parameter_values(u)) {
+            if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+                return Err(AdjointError::Eval(EvalError::Parameter {
+                    name: name.clone(),
+                    message: format!("value {i} would be {} from the fit's links", values[i]),
+                }));
+            }
             system.set_parameter(name, &values)?;
         }
         Ok(())
     }
 
-    /// `∂p_i/∂s_j` of link `l` of variable `v` (values `uv`) for parameter entry `i` (`j` the variable's
-    /// entry acting on it): `p e / u` for a power link, the power factors for a value link, times `u` for a
-    /// positive variable (`s = ln u`).
-    fn link_derivative(l: &Link, positive: bool, u: f64, value: f64, factor: f64) -> f64 {
+    /// `∂p_i/∂s_j` of link `l` of variable `v` (value `u`) for parameter entry `i` (`j` the variable's
+    /// entry acting on it): `p e / u` for a power link, `p e q′(u)/q(u)` for a quadratic one, the factors
+    /// for a value link, times `du/ds` (`u` for a positive variable, `(u − lo)(hi − u)/(hi − lo)` for a
+    /// bounded one).
+    fn link_derivative(l: &Link, v: &FitVariable, u: f64, value: f64, factor: f64) -> f64 {
         let d = match l {
             Link::Power { exponent, .. } => value * exponent / u,
+            Link::Quadratic {
+                coefficients: [_, b, c],
+                exponent,
+                ..
+            } => value * exponent * (b + 2.0 * c * u) / l.quadratic(u).unwrap_or(f64::NAN),
             Link::Value { .. } => factor,
         };
-        if positive { d * u } else { d }
+        d * v.du_ds(u)
     }
 
     /// The regularizer's value and gradient (added to `grad`).
@@ -889,8 +1001,7 @@ impl<'a> Fit<'a> {
                 if let Some(dp) = &dl_dp[pi] {
                     for (i, &g) in dp.iter().enumerate() {
                         let j = if uv.len() == 1 { 0 } else { i };
-                        grad[k + j] +=
-                            g * Self::link_derivative(l, v.positive, uv[j], pv[i], factor[i]);
+                        grad[k + j] += g * Self::link_derivative(l, v, uv[j], pv[i], factor[i]);
                     }
                 }
             }
@@ -925,7 +1036,7 @@ impl<'a> Fit<'a> {
                 let direction: Vec<f64> = pv
                     .iter()
                     .zip(factor)
-                    .map(|(&p, &f)| Self::link_derivative(l, v.positive, uv[0], p, f))
+                    .map(|(&p, &f)| Self::link_derivative(l, v, uv[0], p, f))
                     .collect();
                 let s = self
                     .adjoint
@@ -968,6 +1079,38 @@ impl<'a> Fit<'a> {
             });
         }
         Ok(())
+    }
+
+    /// The loss (regularizer included) at the variables' start values and its gradient with respect to
+    /// them, `dL/du` (one entry per variable value, in order; the chain rule through every link), the
+    /// equilibrium solved from `x` (overwritten with it): what each L-BFGS step uses, with respect to the
+    /// values rather than the optimisation variables `s`. For a check before a fit; the system keeps the
+    /// start values.
+    ///
+    /// # Errors
+    /// As [`Fit::run`]'s first evaluation: the equilibrium fails, the Hessian there is not positive definite,
+    /// evaluation errors, a loss or loss gradient that is not finite.
+    pub fn loss_and_gradient(
+        &mut self,
+        system: &mut System,
+        x: &mut [Vector3<f64>],
+        loss: &mut LossFn,
+    ) -> Result<(f64, Vec<f64>), AdjointError> {
+        let s0 = self.to_s();
+        let (l, mut grad) = self.evaluate(system, &s0, x, loss)?;
+        let u = self.unpack(&s0);
+        for (g, (v, uv)) in grad.iter_mut().zip(
+            self.variables
+                .iter()
+                .zip(&u)
+                .flat_map(|(v, uv)| uv.iter().map(move |&u| (v, u))),
+        ) {
+            *g /= v.du_ds(uv);
+        }
+        // The exact start values (`s` round-trips to them only to rounding).
+        let start: Vec<Vec<f64>> = self.variables.iter().map(|v| v.start.clone()).collect();
+        self.apply(system, &start)?;
+        Ok((l, grad))
     }
 
     /// Runs L-BFGS from the variables' start values and the state `x` (an initial guess of the first
@@ -1036,9 +1179,13 @@ impl<'a> Fit<'a> {
                 d = cur.grad.iter().map(|g| -g).collect();
                 slope = -gn * gn;
             }
-            // Cap the step so no variable moves more than max_step.
+            // Cap the step so no variable moves more than max_step. Without curvature pairs (the first
+            // iteration, or where the loss has been concave along every step so far) the direction is the
+            // gradient's, whose size says nothing about the distance to the minimum (a loss concave at the
+            // start has a gradient the smaller the nearer the start is to its inflection): that step is
+            // scaled to move the largest variable by max_step, and the line search halves it as needed.
             let big = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let mut t = if big > self.options.max_step {
+            let mut t = if big > self.options.max_step || (mem.is_empty() && big > 0.0) {
                 self.options.max_step / big
             } else {
                 1.0

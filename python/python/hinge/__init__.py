@@ -524,12 +524,13 @@ def adjoint_gradient(system, X, dloss_dx, parameters):
 def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e-9, membrane_continuation=True):
     """Fits system parameters (``TERM.NAME``, see ``System.parameters``) so that the static equilibrium
     matches ``target`` (shape (n, 3); loss: summed squared vertex distances), by L-BFGS with adjoint gradients;
-    parameters whose values are all positive stay positive (fitted on a log scale). The first equilibrium,
-    from ``X0``, goes through the membrane continuation of ``solve_static`` when ``membrane_continuation`` is
-    set; the fit's solves start from it. Returns ``(X, info)``: the fitted equilibrium and a dict with
-    ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``, ``newton_iterations`` (all
-    of them, the first equilibrium's included), ``stop``. The system keeps the fitted values.
-    ``max_iterations`` (L-BFGS iterations) is 0 to 1 000 000; 0 evaluates the start only."""
+    parameters whose values are all positive stay positive (fitted on a log scale), and one an energy bounds
+    (a membrane's ``poisson``, in (-1, 0.5)) stays inside its interval (fitted on a logistic scale). The first
+    equilibrium, from ``X0``, goes through the membrane continuation of ``solve_static`` when
+    ``membrane_continuation`` is set; the fit's solves start from it. Returns ``(X, info)``: the fitted
+    equilibrium and a dict with ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``,
+    ``newton_iterations`` (all of them, the first equilibrium's included), ``stop``. The system keeps the
+    fitted values. ``max_iterations`` (L-BFGS iterations) is 0 to 1 000 000; 0 evaluates the start only."""
     return _hinge.fit(system._s, system._x(X0), system._x(target), _names("parameters", parameters),
                       _count("max_iterations", max_iterations), _number("gradient_tolerance", gradient_tolerance),
                       _flag("membrane_continuation", membrane_continuation))
@@ -537,7 +538,8 @@ def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e
 
 def fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0):
     """``hinge fit`` from Python: the scene keys (``"material.young"``, ``"material.thickness"``,
-    ``"material.density"``, ``"bending.params.NAME"``, ``"bending.rest_angles"``) that make the scene's static
+    ``"material.poisson"``, ``"material.density"``, ``"bending.params.NAME"``, ``"bending.rest_angles"``) that
+    make the scene's static
     equilibrium match ``target`` (a mesh file path, or an (n, 3) array). Returns ``(X, info)`` like ``fit``;
     keys that cannot be told apart from the target raise ``ValueError``. ``max_iterations`` is 0 to 1 000 000
     and ``smoothness`` (the regularizer's weight, as ``hinge fit --smoothness``) non-negative."""
