@@ -3236,6 +3236,43 @@ fn the_corotational_and_neo_hookean_membranes_run_in_scenes() {
 /// `hinge fit`: Young's modulus of beam3 recovered from its own static shape (from a 3× too stiff and a 2×
 /// too soft start, ≤ 25 equilibria each), the fitted scene reproducing the target, a custom ψ's scalar
 /// parameter and the rest angles of a creased sheet, and every bad input a one-line error.
+/// `hinge fit SCENE --target TARGET --fit KEY --out OUT`, which must succeed with only the JSON on stdout.
+fn fit_json(scene: &str, target: &str, key: &str, out: &str) -> serde_json::Value {
+    let o = hinge(&["fit", scene, "--target", target, "--fit", key, "--out", out]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// Writes the scene `text` to `path` and its static equilibrium (`hinge run --static`) to `out`.
+fn static_shape(path: &str, text: &str, out: &str) {
+    std::fs::write(path, text).unwrap();
+    let o = hinge(&["run", path, "--static", "--out", out]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// [`fit_json`] of the scene `text` with one edit `(from, to)`, written to `path`.
+fn fit_variant(
+    text: &str,
+    (from, to): (&str, String),
+    path: &str,
+    target: &str,
+    key: &str,
+    out: &str,
+) -> serde_json::Value {
+    assert!(text.contains(from), "{from}");
+    std::fs::write(path, text.replace(from, &to)).unwrap();
+    fit_json(path, target, key, out)
+}
+
+/// The value of `KEY = …` in `DIR/fitted.toml`.
+fn fitted_value(dir: &str, key: &str) -> f64 {
+    let toml = std::fs::read_to_string(format!("{dir}/fitted.toml")).unwrap();
+    toml.lines()
+        .find_map(|l| l.strip_prefix(&format!("{key} = ")).map(str::to_string))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{toml}"))
+}
+
 #[test]
 fn fit_recovers_keys_from_static_shapes() {
     let dir = tmp("fit");
@@ -3251,29 +3288,9 @@ fn fit_recovers_keys_from_static_shapes() {
     let target = d("target/static.obj");
     for (name, young) in [("stiff", "6e+09"), ("soft", "1e+09")] {
         let path = d(&format!("beam3_{name}.toml"));
-        std::fs::write(
-            &path,
-            scene_text.replace("young = 2e+09", &format!("young = {young}")),
-        )
-        .unwrap();
         let fitted = d(&format!("fitted_{name}"));
-        let out = hinge(&[
-            "fit",
-            &path,
-            "--target",
-            &target,
-            "--fit",
-            "material.young",
-            "--out",
-            &fitted,
-        ]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-        // Only the JSON on stdout.
-        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let edit = ("young = 2e+09", format!("young = {young}"));
+        let json = fit_variant(&scene_text, edit, &path, &target, "material.young", &fitted);
         let y = json["fitted"]["material.young"].as_f64().unwrap();
         let equilibria = json["equilibria"].as_u64().unwrap();
         println!(
@@ -3284,13 +3301,7 @@ fn fit_recovers_keys_from_static_shapes() {
         assert!(equilibria <= 25, "{equilibria}");
         assert!(json["loss"].as_f64().unwrap() < 1e-8);
         // The fitted scene solves to the target.
-        let toml = std::fs::read_to_string(format!("{fitted}/fitted.toml")).unwrap();
-        let written: f64 = toml
-            .lines()
-            .find_map(|l| l.strip_prefix("young = "))
-            .and_then(|v| v.trim().parse().ok())
-            .unwrap_or_else(|| panic!("{toml}"));
-        assert_eq!(written, y);
+        assert_eq!(fitted_value(&fitted, "young"), y);
         let again = d(&format!("again_{name}"));
         let out = hinge(&[
             "run",
@@ -3332,37 +3343,15 @@ fn fit_recovers_keys_from_static_shapes() {
         )
         .replace("[pins]", "[bending.params]\nc = 0.02\n\n[pins]");
     let custom_path = d("custom.toml");
-    std::fs::write(&custom_path, &custom).unwrap();
-    let out = hinge(&[
-        "run",
-        &custom_path,
-        "--static",
-        "--out",
-        &d("custom_target"),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    static_shape(&custom_path, &custom, &d("custom_target"));
     let wrong = d("custom_wrong.toml");
     std::fs::write(&wrong, custom.replace("c = 0.02", "c = 0.05")).unwrap();
-    let out = hinge(&[
-        "fit",
+    let json = fit_json(
         &wrong,
-        "--target",
         &d("custom_target/static.obj"),
-        "--fit",
         "bending.params.c",
-        "--out",
         &d("custom_fit"),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
     );
-    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let c = json["fitted"]["bending.params.c"].as_f64().unwrap();
     assert!((c / 0.02 - 1.0).abs() < 1e-3, "{c}");
     // Poisson's ratio (truth 0.3), with the StVK membrane (which takes ν) and the co-rotational one (whose
@@ -3374,19 +3363,7 @@ fn fit_recovers_keys_from_static_shapes() {
         "poisson = 0.3\nmembrane = \"corotational\"\n",
     );
     let corotational = d("corotational.toml");
-    std::fs::write(&corotational, &corotational_text).unwrap();
-    let out = hinge(&[
-        "run",
-        &corotational,
-        "--static",
-        "--out",
-        &d("corotational_target"),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    static_shape(&corotational, &corotational_text, &d("corotational_target"));
     for (text, shape, label) in [
         (&scene_text, target.clone(), "stvk"),
         (
@@ -3397,28 +3374,9 @@ fn fit_recovers_keys_from_static_shapes() {
     ] {
         for start in ["0.15", "0.499"] {
             let path = d(&format!("poisson_{label}_{start}.toml"));
-            std::fs::write(
-                &path,
-                text.replace("poisson = 0.3\n", &format!("poisson = {start}\n")),
-            )
-            .unwrap();
             let fitted = d(&format!("poisson_fit_{label}_{start}"));
-            let out = hinge(&[
-                "fit",
-                &path,
-                "--target",
-                &shape,
-                "--fit",
-                "material.poisson",
-                "--out",
-                &fitted,
-            ]);
-            assert!(
-                out.status.success(),
-                "{}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-            let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let edit = ("poisson = 0.3\n", format!("poisson = {start}\n"));
+            let json = fit_variant(text, edit, &path, &shape, "material.poisson", &fitted);
             let nu = json["fitted"]["material.poisson"].as_f64().unwrap();
             println!(
                 "beam3 ({label}) from nu = {start}: {nu:.9}, {} equilibria",
@@ -3426,13 +3384,7 @@ fn fit_recovers_keys_from_static_shapes() {
             );
             assert!((nu - 0.3).abs() < 1e-4, "{label} {start}: {nu}");
             assert!(json["loss"].as_f64().unwrap() < 1e-12);
-            let toml = std::fs::read_to_string(format!("{fitted}/fitted.toml")).unwrap();
-            let written: f64 = toml
-                .lines()
-                .find_map(|l| l.strip_prefix("poisson = "))
-                .and_then(|v| v.trim().parse().ok())
-                .unwrap_or_else(|| panic!("{toml}"));
-            assert_eq!(written, nu);
+            assert_eq!(fitted_value(&fitted, "poisson"), nu);
         }
     }
     // Rest angles (one per hinge): a few iterations lower the loss and write the fitted field beside the

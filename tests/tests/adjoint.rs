@@ -785,18 +785,33 @@ fn tight_newton(system: &System, pins: &Pins) -> Newton {
     .unwrap()
 }
 
-/// `checks`: parameter, entry, central-difference step.
-fn check_adjoint(c: &Cantilever, per_hinge: bool, checks: &[(&str, usize, f64)]) -> f64 {
-    let mut system = cantilever_system(c, per_hinge);
-    let mut newton = tight_newton(&system, &c.pins);
+/// A tight Newton solver for `system` (the cantilever's pins), the equilibrium from the rest state, and
+/// the loss of a target that is the equilibrium moved by a smooth field (not an equilibrium of anything).
+fn equilibrium_and_moved_target(
+    c: &Cantilever,
+    system: &mut System,
+) -> (Newton, Vec<Vector3<f64>>, TargetLoss) {
+    let mut newton = tight_newton(system, &c.pins);
     let mut x = c.rest.positions().to_vec();
-    newton.minimize(&mut system, &mut x, None).unwrap();
-    // Target: the equilibrium moved by a smooth field (not an equilibrium of anything).
+    newton.minimize(system, &mut x, None).unwrap();
     let target: Vec<Vector3<f64>> = x
         .iter()
         .map(|p| p + Vector3::new(0.0, 0.002 * p.x, -0.01 * p.x * p.x))
         .collect();
-    let loss = TargetLoss::all(target);
+    (newton, x, TargetLoss::all(target))
+}
+
+/// `f′(0)` by central differences at `h` and `2h`, Richardson-extrapolated (error O(h⁴)).
+fn richardson(f: &mut impl FnMut(f64) -> f64, h: f64) -> f64 {
+    let d1 = (f(h) - f(-h)) / (2.0 * h);
+    let d2 = (f(2.0 * h) - f(-2.0 * h)) / (4.0 * h);
+    (4.0 * d1 - d2) / 3.0
+}
+
+/// `checks`: parameter, entry, central-difference step.
+fn check_adjoint(c: &Cantilever, per_hinge: bool, checks: &[(&str, usize, f64)]) -> f64 {
+    let mut system = cantilever_system(c, per_hinge);
+    let (mut newton, x, loss) = equilibrium_and_moved_target(c, &mut system);
     let mut dl = vec![0.0; 3 * x.len()];
     loss.evaluate(&x, &mut dl).unwrap();
     let mut adjoint = Adjoint::new(&system, &c.pins).unwrap();
@@ -815,10 +830,7 @@ fn check_adjoint(c: &Cantilever, per_hinge: bool, checks: &[(&str, usize, f64)])
             system.set_parameter(name, &base).unwrap();
             loss.evaluate(&y, &mut vec![0.0; 3 * y.len()]).unwrap()
         };
-        // Central differences at h and 2h, Richardson-extrapolated (error O(h⁴)).
-        let d1 = (solved(h) - solved(-h)) / (2.0 * h);
-        let d2 = (solved(2.0 * h) - solved(-2.0 * h)) / (4.0 * h);
-        let fd = (4.0 * d1 - d2) / 3.0;
+        let fd = richardson(&mut solved, h);
         let err = (fd - g[entry]).abs() / fd.abs().max(g[entry].abs());
         println!(
             "  dL/d{name}[{entry}] = {:.6e}, central differences {fd:.6e}, relative {err:.1e}",
@@ -849,17 +861,7 @@ fn adjoint_gradients_match_central_differences_of_resolved_equilibria() {
             ("bending.theta_bar", 5, 1e-3),
         ],
     );
-    let base = irregular_sheet(8, 4, 21).unwrap();
-    let perm = random_permutation(base.n_vertices(), 9);
-    let scaled = TriMesh::new(
-        base.positions()
-            .iter()
-            .map(|p| Vector3::new(0.3 * p.x, 0.1 * p.y, 0.0))
-            .collect(),
-        base.triangles().to_vec(),
-    )
-    .unwrap();
-    let sheet = cantilever(renumber(&scaled, &perm).unwrap(), 0.3 / 7.0, 2e8);
+    let sheet = irregular_cantilever(0.3);
     let w2 = check_adjoint(
         &sheet,
         true,
@@ -1640,17 +1642,7 @@ fn fitted_rest_angles_of_an_irregular_sheet_reproduce_its_shape_but_are_not_uniq
     // with the out-of-plane dofs only (here 49 free vertices for 130 hinges), so rest angles differing
     // along that null space give the same equilibrium. Asserted: the loss falls by 1e-8 and the fitted
     // equilibrium is the target; printed: how far the rest angles are from the rolled ones.
-    let base = irregular_sheet(9, 7, 31).unwrap();
-    let scaled = TriMesh::new(
-        base.positions()
-            .iter()
-            .map(|p| Vector3::new(0.2 * p.x, 0.15 * p.y, 0.0))
-            .collect(),
-        base.triangles().to_vec(),
-    )
-    .unwrap();
-    let perm = random_permutation(scaled.n_vertices(), 77);
-    let c = cantilever(renumber(&scaled, &perm).unwrap(), 0.2 / 8.0, 2e8);
+    let c = sheet_cantilever([9, 7], 31, [0.2, 0.15], 77);
     let mut system = cantilever_system(&c, false);
     let hinges = hinge_core::topology::hinges(&c.rest).unwrap();
     let x0 = c.rest.positions();
@@ -1791,22 +1783,29 @@ fn the_cantilever_bending_test_gives_the_plate_stiffness() {
     );
 }
 
-/// The irregular renumbered sheet of `adjoint_gradients_match_central_differences_of_resolved_equilibria`
-/// (0.3 m × 0.1 m, clamped at x = 0) as a cantilever of Young's modulus 2e8 Pa, Poisson ratio `poisson`.
-fn poisson_cantilever(poisson: f64) -> Cantilever {
-    let base = irregular_sheet(8, 4, 21).unwrap();
-    let perm = random_permutation(base.n_vertices(), 9);
+/// An irregular sheet of `n` vertices along x and y (seed `seed`) scaled to `size` metres, renumbered
+/// (seed `perm`), as a cantilever clamped at x = 0 of Young's modulus 2e8 Pa.
+fn sheet_cantilever(n: [usize; 2], seed: u64, size: [f64; 2], perm: u64) -> Cantilever {
+    let base = irregular_sheet(n[0], n[1], seed).unwrap();
     let scaled = TriMesh::new(
         base.positions()
             .iter()
-            .map(|p| Vector3::new(0.3 * p.x, 0.1 * p.y, 0.0))
+            .map(|p| Vector3::new(size[0] * p.x, size[1] * p.y, 0.0))
             .collect(),
         base.triangles().to_vec(),
     )
     .unwrap();
+    let perm = random_permutation(scaled.n_vertices(), perm);
+    let spacing = size[0] / (n[0] - 1) as f64;
+    cantilever(renumber(&scaled, &perm).unwrap(), spacing, 2e8)
+}
+
+/// The irregular renumbered sheet 0.3 m × 0.1 m clamped at x = 0 (8 × 4 vertices) of Poisson ratio
+/// `poisson`.
+fn irregular_cantilever(poisson: f64) -> Cantilever {
     Cantilever {
         poisson,
-        ..cantilever(renumber(&scaled, &perm).unwrap(), 0.3 / 7.0, 2e8)
+        ..sheet_cantilever([8, 4], 21, [0.3, 0.1], 9)
     }
 }
 
@@ -1876,16 +1875,9 @@ fn a_bounded_variable_s_gradient_through_quadratic_and_value_links_matches_rebui
     let mut worst = 0.0f64;
     for corotational in [false, true] {
         for nu in [0.3, -0.6, 0.45] {
-            let c = poisson_cantilever(nu);
+            let c = irregular_cantilever(nu);
             let mut system = poisson_system(&c, corotational);
-            let mut newton = tight_newton(&system, &c.pins);
-            let mut x = c.rest.positions().to_vec();
-            newton.minimize(&mut system, &mut x, None).unwrap();
-            let target: Vec<Vector3<f64>> = x
-                .iter()
-                .map(|p| p + Vector3::new(0.0, 0.002 * p.x, -0.01 * p.x * p.x))
-                .collect();
-            let loss = TargetLoss::all(target);
+            let (mut newton, x, loss) = equilibrium_and_moved_target(&c, &mut system);
             let before: Vec<Vec<f64>> = system
                 .parameters()
                 .iter()
@@ -1913,19 +1905,12 @@ fn a_bounded_variable_s_gradient_through_quadratic_and_value_links_matches_rebui
             assert_eq!(before, after);
             assert_eq!(l, loss.evaluate(&y, &mut vec![0.0; 3 * y.len()]).unwrap());
             let mut solved = |v: f64| {
-                let cv = Cantilever {
-                    poisson: v,
-                    ..poisson_cantilever(v)
-                };
-                let mut s = poisson_system(&cv, corotational);
+                let mut s = poisson_system(&irregular_cantilever(v), corotational);
                 let mut yv = x.clone();
                 newton.minimize(&mut s, &mut yv, None).unwrap();
                 loss.evaluate(&yv, &mut vec![0.0; 3 * yv.len()]).unwrap()
             };
-            let h = 1e-3;
-            let d1 = (solved(nu + h) - solved(nu - h)) / (2.0 * h);
-            let d2 = (solved(nu + 2.0 * h) - solved(nu - 2.0 * h)) / (4.0 * h);
-            let fd = (4.0 * d1 - d2) / 3.0;
+            let fd = richardson(&mut |h| solved(nu + h), 1e-3);
             let err = (fd - g[0]).abs() / fd.abs().max(g[0].abs());
             println!(
                 "dL/dnu at {nu} ({}): fit {:.6e}, central differences {fd:.6e}, relative {err:.1e}",
@@ -1950,7 +1935,7 @@ fn fitting_recovers_poisson_s_ratio_inside_its_bounds() {
     // on the truth's side recovers it, from 0.15 (where the loss is concave in ν: a first step as large as
     // the gradient barely moves) and from the upper bound's edge, and every accepted value stays inside
     // (−1, 0.5).
-    let truth = poisson_cantilever(0.3);
+    let truth = irregular_cantilever(0.3);
     for corotational in [false, true] {
         let mut truth_system = poisson_system(&truth, corotational);
         let mut target = truth.rest.positions().to_vec();
@@ -1958,7 +1943,7 @@ fn fitting_recovers_poisson_s_ratio_inside_its_bounds() {
             .minimize(&mut truth_system, &mut target, None)
             .unwrap();
         for start in [0.15, 0.499] {
-            let c = poisson_cantilever(start);
+            let c = irregular_cantilever(start);
             let mut system = poisson_system(&c, corotational);
             let mut newton = tight_newton(&system, &c.pins);
             let seen = std::cell::RefCell::new(Vec::new());
@@ -2011,7 +1996,7 @@ fn fitting_recovers_poisson_s_ratio_inside_its_bounds() {
 
 #[test]
 fn bad_ranges_and_quadratic_links_are_refused_at_set_up() {
-    let c = poisson_cantilever(0.3);
+    let c = irregular_cantilever(0.3);
     let system = poisson_system(&c, false);
     let mut newton = tight_newton(&system, &c.pins);
     let cases: Vec<(FitVariable, &str)> = vec![
