@@ -22,7 +22,9 @@ use hinge_core::meshio::FileNumbering;
 use hinge_core::nalgebra::Vector3;
 use hinge_core::{ElementNames, TriMesh};
 use hinge_energies::membrane::{MembraneModel, POISSON_BOUNDS};
-use hinge_solver::adjoint::{AdjointError, Fit, FitOptions, FitVariable, Link, TargetLoss};
+use hinge_solver::adjoint::{
+    AdjointError, FieldCheck, Fit, FitOptions, FitVariable, Link, TargetLoss,
+};
 use hinge_solver::newton::{Newton, NewtonParams};
 use hinge_solver::statics::continued_start;
 
@@ -80,11 +82,14 @@ pub struct Fitted {
     pub x: Vec<Vector3<f64>>,
     /// Why the fit stopped.
     pub stop: &'static str,
+    /// How many values of each per-hinge key the target determines ([`FieldCheck`]).
+    pub fields: Vec<FieldCheck>,
 }
 
 impl Fitted {
     /// The JSON `hinge fit` prints: `{"fitted": {KEY: value or [values]}, "loss", "iterations",
-    /// "equilibria", "newton_iterations"}`.
+    /// "equilibria", "newton_iterations", "fields"}`, `fields` with `{KEY: {"entries", "without_effect",
+    /// "determined"}}` for every checked per-hinge key.
     pub fn json(&self) -> serde_json::Value {
         let fitted: serde_json::Map<String, serde_json::Value> = self
             .values
@@ -98,12 +103,28 @@ impl Fitted {
                 (k.clone(), value)
             })
             .collect();
+        let fields: serde_json::Map<String, serde_json::Value> = self
+            .fields
+            .iter()
+            .filter_map(|f| {
+                let r = f.rank?;
+                Some((
+                    f.variable.clone(),
+                    serde_json::json!({
+                        "entries": f.entries,
+                        "without_effect": r.without_effect,
+                        "determined": r.determined,
+                    }),
+                ))
+            })
+            .collect();
         serde_json::json!({
             "fitted": fitted,
             "loss": self.loss,
             "iterations": self.iterations,
             "equilibria": self.equilibria,
             "newton_iterations": self.newton_iterations,
+            "fields": fields,
         })
     }
 }
@@ -337,6 +358,7 @@ pub fn fit_scene_until(
     let (parameter, stages) = crate::run::membrane_stages(scene, membrane, rest, &mut system)
         .map_err(|e| crate::run::solver_message(&e, names))?;
     let start_iterations = continued_start(&mut newton, &mut system, &mut x, parameter, &stages);
+    let smoothness = options.smoothness;
     let mut fit = Fit::new(&system, &pins, &mut newton, variables, options)
         .map_err(|e| fit_message(&e, names))?;
     fit.observe(|p| {
@@ -352,6 +374,11 @@ pub fn fit_scene_until(
         "fit: stopped ({}): loss {:.3e} → {:.3e} in {} iterations, {} equilibria",
         r.stop, r.initial_loss, r.loss, r.iterations, r.equilibria
     );
+    for f in &r.fields {
+        if let Some(line) = field_note(f, smoothness) {
+            eprintln!("{line}");
+        }
+    }
     Ok(Fitted {
         values: keys.iter().cloned().zip(r.values).collect(),
         loss: r.loss,
@@ -360,7 +387,42 @@ pub fn fit_scene_until(
         newton_iterations: start_iterations + r.newton_iterations,
         x: r.x,
         stop: r.stop,
+        fields: r.fields,
     })
+}
+
+/// The warning for a per-hinge key the target does not determine (`None` when it does, or when the key was
+/// not checked).
+fn field_note(f: &FieldCheck, smoothness: f64) -> Option<String> {
+    let r = f.rank?;
+    let free = f.entries - r.without_effect - r.determined;
+    if free == 0 && r.without_effect == 0 {
+        return None;
+    }
+    let mut parts = Vec::new();
+    if r.without_effect > 0 {
+        parts.push(format!(
+            "{} move nothing (hinges inside a clamp, say)",
+            r.without_effect
+        ));
+    }
+    if free > 0 {
+        parts.push(format!(
+            "{free} combinations of the others leave the equilibrium unchanged"
+        ));
+    }
+    Some(format!(
+        "fit: warning: the target determines {} of the {} values of {}: {}; {}",
+        r.determined,
+        f.entries,
+        f.variable,
+        parts.join(", "),
+        if smoothness > 0.0 {
+            "the smoothness term chooses among the fields that fit"
+        } else {
+            "the fitted field is one of many that fit (--smoothness W chooses the smoothest)"
+        }
+    ))
 }
 
 /// A fit's error; with `names` (a mesh file's numbering), an evaluation or equilibrium error names its

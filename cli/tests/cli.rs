@@ -3416,6 +3416,67 @@ fn fit_recovers_keys_from_static_shapes() {
     assert!(toml.contains("fitted_rest_angles.txt"), "{toml}");
     let written = std::fs::read_to_string(d("angles_fit/fitted_rest_angles.txt")).unwrap();
     assert_eq!(written.lines().count(), n_angles);
+    // One static shape does not determine every rest angle: the JSON and a warning say how many it does.
+    // Those that move nothing include the hinges inside the clamp (all four vertices pinned: the first two
+    // vertex columns, x ≤ one spacing), counted here from the target mesh.
+    let field = &json["fields"]["bending.rest_angles"];
+    let count = |k: &str| field[k].as_u64().unwrap() as usize;
+    let (entries, without, determined) = (
+        count("entries"),
+        count("without_effect"),
+        count("determined"),
+    );
+    let text = std::fs::read_to_string(&target).unwrap();
+    let xs: Vec<f64> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
+        .collect();
+    let spacing = 0.3 / 60.0; // beam3: cells = [60, 5]
+    assert!(scene_text.contains("cells = [60, 5]"));
+    let faces: Vec<Vec<usize>> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("f "))
+        .map(|l| {
+            l.split_whitespace()
+                .map(|v| v.split('/').next().unwrap().parse::<usize>().unwrap() - 1)
+                .collect()
+        })
+        .collect();
+    let mut edge_faces = std::collections::HashMap::<(usize, usize), Vec<usize>>::new();
+    for (k, f) in faces.iter().enumerate() {
+        for i in 0..3 {
+            let (a, b) = (f[i], f[(i + 1) % 3]);
+            edge_faces.entry((a.min(b), a.max(b))).or_default().push(k);
+        }
+    }
+    let clamped = |v: usize| xs[v] <= 1.01 * spacing;
+    let hinges: Vec<&Vec<usize>> = edge_faces.values().filter(|f| f.len() == 2).collect();
+    let inside = hinges
+        .iter()
+        .filter(|f| f.iter().all(|&k| faces[k].iter().all(|&v| clamped(v))))
+        .count();
+    println!(
+        "beam3 rest angles: {entries} values, {without} move nothing ({inside} hinges inside the clamp), \
+         {determined} determined"
+    );
+    assert_eq!(entries, n_angles);
+    assert_eq!(hinges.len(), n_angles);
+    // Every hinge inside the clamp, and at most a few more whose effect rounding cancels (flat symmetric
+    // stencils beside the clamp).
+    assert!(
+        without >= inside && without <= inside + 2,
+        "{without} {inside}"
+    );
+    assert!(determined > 0 && without + determined < entries, "{field}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&format!(
+            "fit: warning: the target determines {determined} of the {entries} values of \
+             bending.rest_angles: {without} move nothing"
+        )),
+        "{err}"
+    );
     // Bad input: one line on stderr, exit code 1.
     let other = d("other.obj");
     std::fs::write(&other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();

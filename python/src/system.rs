@@ -17,7 +17,9 @@ use hinge_energies::gravity::{Gravity, lumped_masses};
 use hinge_energies::membrane::MembraneModel;
 use hinge_energies::pins::Pins;
 use hinge_energies::spring::MassSpring;
-use hinge_solver::adjoint::{Adjoint, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss};
+use hinge_solver::adjoint::{
+    Adjoint, FieldCheck, Fit, FitOptions, FitResult, FitVariable, Link, TargetLoss,
+};
 use hinge_solver::linear::FaerLlt;
 use hinge_solver::newton::{
     DEFINITE_HOLD, DEFINITE_SHIFT_RATIO, Globalization, ImplicitEuler as Stepper,
@@ -1145,12 +1147,15 @@ pub fn adjoint_gradient<'py>(
     Ok(d)
 }
 
-/// The dict `{"fitted": …, "loss", "iterations", "equilibria", "newton_iterations", "stop"}` of a fit.
+/// The dict `{"fitted": …, "loss", "iterations", "equilibria", "newton_iterations", "stop", "fields"}` of a
+/// fit; `fields` maps every checked field variable to `{"entries", "without_effect", "determined"}`
+/// ([`FieldCheck`]).
 fn fit_info<'py>(
     py: Python<'py>,
     names: &[String],
     values: &[Vec<f64>],
     r: (f64, usize, usize, usize, &str),
+    checks: &[FieldCheck],
 ) -> PyResult<Bound<'py, PyDict>> {
     let fitted = PyDict::new(py);
     for (n, v) in names.iter().zip(values) {
@@ -1167,6 +1172,17 @@ fn fit_info<'py>(
     d.set_item("equilibria", r.2)?;
     d.set_item("newton_iterations", r.3)?;
     d.set_item("stop", r.4)?;
+    let fields = PyDict::new(py);
+    for f in checks {
+        if let Some(rank) = f.rank {
+            let c = PyDict::new(py);
+            c.set_item("entries", f.entries)?;
+            c.set_item("without_effect", rank.without_effect)?;
+            c.set_item("determined", rank.determined)?;
+            fields.set_item(&f.variable, c)?;
+        }
+    }
+    d.set_item("fields", fields)?;
     Ok(d)
 }
 
@@ -1280,14 +1296,15 @@ pub fn fit<'py>(
             start + r.newton_iterations,
             r.stop,
         ),
+        &r.fields,
     )?;
     Ok((to_array(py, &r.x)?, info))
 }
 
 /// `fit_scene(scene, target, keys, max_iterations=50, smoothness=0.0)`: `hinge fit` from Python — the scene
-/// keys (`material.young`, `material.thickness`, `material.density`, `bending.params.NAME`,
-/// `bending.rest_angles`) that make the scene's static equilibrium match `target` (a mesh file path, or the
-/// positions as an (n, 3) array). Returns `(X, info)` like `fit`.
+/// keys (`material.young`, `material.thickness`, `material.poisson`, `material.density`,
+/// `bending.params.NAME`, `bending.rest_angles`) that make the scene's static equilibrium match `target` (a
+/// mesh file path, or the positions as an (n, 3) array). Returns `(X, info)` like `fit`.
 #[pyfunction]
 #[pyo3(signature = (scene, target, keys, max_iterations=50, smoothness=0.0))]
 pub fn fit_scene<'py>(
@@ -1360,6 +1377,7 @@ pub fn fit_scene<'py>(
             r.newton_iterations,
             r.stop,
         ),
+        &r.fields,
     )?;
     Ok((to_array(py, &r.x)?, info))
 }

@@ -1067,10 +1067,53 @@ def test_fit_recovers_the_bending_stiffness():
     assert info["fitted"][bending] == pytest.approx(1e-2, rel=1e-4)
     assert s.parameter(bending)[0] == info["fitted"][bending]
     assert info["equilibria"] <= 25 and np.abs(X - T).max() < 1e-6
+    assert info["fields"] == {}  # a scalar is not a field
     with pytest.raises(ValueError, match="twice"):
         hinge.fit(s, V, T, [bending, bending])
     with pytest.raises(ValueError, match="unknown"):
         hinge.fit(s, V, T, ["nothing.here"])
+
+
+def test_fit_reports_how_many_rest_angles_a_static_shape_determines():
+    # The clamped irregular sheet's rest angles: hinges with all four vertices pinned move nothing (counted
+    # here from F and the clamp); the others' count of determined combinations (eigenvalues of the
+    # correlation matrix of their equilibrium sensitivities at or above 1e-4) against the same count from
+    # central differences of re-solved equilibria. Near flat, a rest angle moves the sheet through the
+    # out-of-plane dofs only, so the count is near the free vertices' (31; this sagging soft sheet: 32).
+    V, F, s = cantilever()
+    rest_angles = [n for n, _ in s.parameters() if n.endswith(".theta_bar")][0]
+    T, _ = hinge.solve_static(s, V, gradient_tolerance=1e-11)
+    clamp = set(np.flatnonzero(V[:, 0] <= V[:, 0].min() + 1e-9 + 0.3 / 8).tolist())
+    faces_of = {}
+    for k, f in enumerate(F):
+        for i in range(3):
+            a, b = sorted((int(f[i]), int(f[(i + 1) % 3])))
+            faces_of.setdefault((a, b), []).append(k)
+    hinges = [fs for fs in faces_of.values() if len(fs) == 2]
+    inside = sum(all(int(v) in clamp for k in fs for v in F[k]) for fs in hinges)
+    X, info = hinge.fit(s, V, T, [rest_angles], max_iterations=0)
+    field = info["fields"][rest_angles]
+    h, columns = 1e-4, []
+    for i in range(len(hinges)):
+        moved = []
+        for delta in (h, -h):
+            angles = np.zeros(len(hinges))
+            angles[i] = delta
+            s.set_parameter(rest_angles, angles)
+            moved.append(hinge.solve_static(s, T, gradient_tolerance=1e-12)[0])
+        columns.append(((moved[0] - moved[1]) / (2 * h)).ravel())
+    s.set_parameter(rest_angles, np.zeros(len(hinges)))
+    C = np.array(columns).T
+    norms = np.linalg.norm(C, axis=0)
+    kept = norms > 1e-12 * norms.max()
+    U = C[:, kept] / norms[kept]
+    determined = int((np.linalg.eigvalsh(U.T @ U) >= 1e-4).sum())
+    print("rest angles:", field, "hinges inside the clamp:", inside, "free vertices:", len(V) - len(clamp),
+          "central differences:", determined, "determined,", int((~kept).sum()), "without effect")
+    assert field["entries"] == len(hinges)
+    assert field["without_effect"] == inside == int((~kept).sum()) > 0
+    assert field["determined"] == determined
+    assert abs(determined - (len(V) - len(clamp))) <= 1
 
 
 def test_fit_starts_from_the_equilibrium_the_membrane_continuation_reaches():

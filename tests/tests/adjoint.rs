@@ -2070,3 +2070,143 @@ fn bad_ranges_and_quadratic_links_are_refused_at_set_up() {
     assert_eq!(system.parameter_bounds("bending.k").unwrap(), None);
     assert!(system.parameter_bounds("membrane.nu").is_err());
 }
+
+/// The number of eigenvalues at or above `tol` of the correlation matrix of the non-zero columns `cols`,
+/// and the number of zero columns.
+fn correlation_rank(cols: &[Vec<f64>], tol: f64) -> (usize, usize) {
+    let unit: Vec<Vec<f64>> = cols
+        .iter()
+        .filter_map(|c| {
+            let n = c.iter().map(|v| v * v).sum::<f64>().sqrt();
+            (n > 0.0).then(|| c.iter().map(|v| v / n).collect())
+        })
+        .collect();
+    let m = unit.len();
+    let g = hinge_core::nalgebra::DMatrix::from_fn(m, m, |i, j| {
+        unit[i]
+            .iter()
+            .zip(&unit[j])
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+    });
+    let rank = g
+        .symmetric_eigenvalues()
+        .iter()
+        .filter(|&&e| e >= tol)
+        .count();
+    (rank, cols.len() - m)
+}
+
+#[test]
+fn a_field_check_counts_the_values_a_static_shape_determines() {
+    // The rest angles of the irregular renumbered clamped sheet (130 hinges, 49 free vertices): at its
+    // near-flat equilibrium a rest angle moves the sheet through the out-of-plane dofs only, so the shape
+    // determines 49 combinations; hinges with all four vertices pinned move nothing. The fit's count (from
+    // adjoint sensitivities) against the same count from central differences of re-solved equilibria, and
+    // against the topology (hinges inside the clamp) and the free-vertex count.
+    let c = sheet_cantilever([9, 7], 31, [0.2, 0.15], 77);
+    let mut system = cantilever_system(&c, false);
+    let hinges = hinge_core::topology::hinges(&c.rest).unwrap();
+    let m = hinges.len();
+    let pinned_hinges = hinges
+        .iter()
+        .filter(|h| h.vertices.iter().all(|&v| c.pins.contains(v)))
+        .count();
+    let free = c.rest.n_vertices() - c.pins.vertices().len();
+    let mut newton = tight_newton(&system, &c.pins);
+    let mut x = c.rest.positions().to_vec();
+    newton.minimize(&mut system, &mut x, None).unwrap();
+    let loss = TargetLoss::all(x.clone());
+    let variable = FitVariable {
+        name: "bending.rest_angles".into(),
+        start: vec![0.0; m],
+        positive: false,
+        range: None,
+        links: vec![Link::Value {
+            parameter: "bending.theta_bar".into(),
+        }],
+    };
+    let options = FitOptions {
+        max_iterations: 0,
+        ..FitOptions::default()
+    };
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![variable.clone()],
+        options.clone(),
+    )
+    .unwrap();
+    let r = fit
+        .run(&mut system, &mut x.clone(), &mut |x, g| loss.evaluate(x, g))
+        .unwrap();
+    drop(fit);
+    assert_eq!(r.fields.len(), 1);
+    let rank = r.fields[0].rank.unwrap();
+    // Central differences of the equilibrium in each rest angle.
+    let h = 1e-4;
+    let cols: Vec<Vec<f64>> = (0..m)
+        .map(|i| {
+            let mut solved = |delta: f64| {
+                let mut t = vec![0.0; m];
+                t[i] = delta;
+                system.set_parameter("bending.theta_bar", &t).unwrap();
+                let mut y = x.clone();
+                newton.minimize(&mut system, &mut y, None).unwrap();
+                y
+            };
+            let (a, b) = (solved(h), solved(-h));
+            a.iter()
+                .zip(&b)
+                .flat_map(|(p, q)| ((p - q) / (2.0 * h)).iter().copied().collect::<Vec<_>>())
+                .collect()
+        })
+        .collect();
+    system
+        .set_parameter("bending.theta_bar", &vec![0.0; m])
+        .unwrap();
+    let (fd_rank, fd_zero) = correlation_rank(&cols, options.identifiability_tolerance);
+    println!(
+        "rest angles of {m} hinges, {free} free vertices, {pinned_hinges} hinges inside the clamp: the fit \
+         counts {} determined and {} without effect; central differences {fd_rank} and {fd_zero}",
+        rank.determined, rank.without_effect
+    );
+    assert_eq!(rank.without_effect, pinned_hinges);
+    assert_eq!(rank.determined, free);
+    assert_eq!((fd_rank, fd_zero), (rank.determined, rank.without_effect));
+    assert_eq!(r.fields[0].entries, m);
+    // A tolerance of 0 checks nothing; a scalar variable is not a field.
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![variable.clone()],
+        FitOptions {
+            identifiability_tolerance: 0.0,
+            ..options.clone()
+        },
+    )
+    .unwrap();
+    let r = fit
+        .run(&mut system, &mut x.clone(), &mut |x, g| loss.evaluate(x, g))
+        .unwrap();
+    drop(fit);
+    assert_eq!(r.fields[0].rank, None);
+    let mut fit = Fit::new(
+        &system,
+        &c.pins,
+        &mut newton,
+        vec![FitVariable {
+            name: "uniform rest angle".into(),
+            start: vec![0.0],
+            ..variable
+        }],
+        options,
+    )
+    .unwrap();
+    let r = fit
+        .run(&mut system, &mut x, &mut |x, g| loss.evaluate(x, g))
+        .unwrap();
+    assert!(r.fields.is_empty());
+}

@@ -529,8 +529,12 @@ def fit(system, X0, target, parameters, max_iterations=50, gradient_tolerance=1e
     equilibrium, from ``X0``, goes through the membrane continuation of ``solve_static`` when
     ``membrane_continuation`` is set; the fit's solves start from it. Returns ``(X, info)``: the fitted
     equilibrium and a dict with ``fitted`` (name -> value or array), ``loss``, ``iterations``, ``equilibria``,
-    ``newton_iterations`` (all of them, the first equilibrium's included), ``stop``. The system keeps the
-    fitted values. ``max_iterations`` (L-BFGS iterations) is 0 to 1 000 000; 0 evaluates the start only."""
+    ``newton_iterations`` (all of them, the first equilibrium's included), ``stop`` and ``fields``: for every
+    parameter with more than one value, ``{"entries", "without_effect", "determined"}`` — how many of its
+    values move nothing, and how many independent combinations of the others the target determines (one
+    static shape often determines fewer per-hinge values than there are; the fit then returns one of many
+    fields that give the same equilibrium). The system keeps the fitted values. ``max_iterations`` (L-BFGS
+    iterations) is 0 to 1 000 000; 0 evaluates the start only."""
     return _hinge.fit(system._s, system._x(X0), system._x(target), _names("parameters", parameters),
                       _count("max_iterations", max_iterations), _number("gradient_tolerance", gradient_tolerance),
                       _flag("membrane_continuation", membrane_continuation))
