@@ -17,8 +17,8 @@
 //!
 //! [`Fit`] minimises a loss over chosen parameters with L-BFGS on `s = ln u` (positive parameters stay
 //! positive), on `s = ln((u − lo)/(hi − u))` for a variable bounded to `(lo, hi)` (a Poisson ratio stays
-//! in `(−1, 0.5)`), or on `u` itself; each evaluation an equilibrium solved by [`Newton`] from the previous one and its gradient
-//! by the adjoint; see [`Fit::run`].
+//! in `(−1, 0.5)`), or on `u` itself; each evaluation an equilibrium solved by [`Newton`] from the
+//! previous one and its gradient by the adjoint; see [`Fit::run`].
 
 use hinge_core::EvalError;
 use hinge_core::bending::{Parallelism, Request};
@@ -1066,27 +1066,22 @@ impl<'a> Fit<'a> {
         values: &[(Vec<f64>, Vec<f64>)],
     ) -> Result<Vec<f64>, AdjointError> {
         let mut col = vec![0.0; 3 * x.len()];
-        let v = &self.variables[k];
-        let links: Vec<(usize, Link)> = v
-            .links
-            .iter()
-            .filter_map(|l| {
-                let pi = self.linked.iter().position(|(n, _)| n == l.parameter())?;
-                Some((pi, l.clone()))
-            })
-            .collect();
-        for (pi, l) in links {
+        let scalar = u[k].len() == 1;
+        let uj = u[k][if scalar { 0 } else { j }];
+        for l in &self.variables[k].links {
+            let Some(pi) = self.linked.iter().position(|(n, _)| n == l.parameter()) else {
+                continue;
+            };
             let (pv, factor) = &values[pi];
             let v = &self.variables[k];
-            let uj = u[k][if u[k].len() == 1 { 0 } else { j }];
-            let direction: Vec<f64> = if u[k].len() == 1 {
+            let direction: Vec<f64> = if scalar {
                 pv.iter()
                     .zip(factor)
-                    .map(|(&p, &f)| Self::link_derivative(&l, v, uj, p, f))
+                    .map(|(&p, &f)| Self::link_derivative(l, v, uj, p, f))
                     .collect()
             } else {
                 let mut d = vec![0.0; pv.len()];
-                d[j] = Self::link_derivative(&l, v, uj, pv[j], factor[j]);
+                d[j] = Self::link_derivative(l, v, uj, pv[j], factor[j]);
                 d
             };
             let s = self
