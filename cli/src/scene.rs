@@ -12,7 +12,7 @@ use hinge_core::grid::{Diagonal, grid};
 use hinge_core::nalgebra::Vector3;
 use hinge_core::psi::runtime::{ParamValue, RuntimePsi, RuntimePsiError};
 use hinge_energies::bending::BuiltinBending;
-use hinge_energies::membrane::MembraneModel;
+use hinge_energies::membrane::{MembraneModel, POISSON_BOUNDS};
 use serde::Deserialize;
 
 /// Built-in scenes: name and TOML text.
@@ -751,9 +751,10 @@ impl Scene {
         positive("material.young", self.material.young)?;
         positive("material.thickness", self.material.thickness)?;
         positive("material.density", self.material.density)?;
-        if !(self.material.poisson > -1.0 && self.material.poisson < 0.5) {
+        let (lower, upper) = POISSON_BOUNDS;
+        if !(self.material.poisson > lower && self.material.poisson < upper) {
             return Err(format!(
-                "material.poisson: must lie in (-1, 0.5), got {}",
+                "material.poisson: must lie in ({lower}, {upper}), got {}",
                 Num(self.material.poisson)
             ));
         }

@@ -258,7 +258,7 @@ pub(crate) mod util {
             [v] => Err(EvalError::Parameter {
                 name: name.to_string(),
                 message: format!(
-                    "must be finite and in (-1, 0.5), got {}",
+                    "must be finite and in ({lower}, {upper}), got {}",
                     hinge_core::error::Num(*v)
                 ),
             }),
