@@ -12,24 +12,30 @@
 //! The file is text, one item per line:
 //!
 //! ```text
-//! hinge checkpoint 1
+//! hinge checkpoint 2
 //! scene drape
 //! frame 46
 //! time 7.666666666666667e-1
 //! dt 1.6666666666666666e-2
 //! shift_memory 3.2e-1
+//! warned_obstacles 0      (obstacles that no longer warn, by index; possibly none)
 //! vertices 961
 //! plastic_hinges 0
 //! x y z vx vy vz          (one line per vertex)
 //! theta_bar alpha         (one line per hinge, only with plasticity)
 //! ```
+//!
+//! Version 1 (before 2026-12-08) had no `warned_obstacles` line; it is read as none.
 
 use std::path::Path;
 
 use hinge_core::nalgebra::Vector3;
 
 /// The first line of every checkpoint (the format's version).
-const HEADER: &str = "hinge checkpoint 1";
+const HEADER: &str = "hinge checkpoint 2";
+
+/// The first line of a version-1 checkpoint (no `warned_obstacles` line), still read.
+const HEADER_1: &str = "hinge checkpoint 1";
 
 /// The state of a time-stepped run after some frame (see the module documentation).
 #[derive(Debug, Clone, PartialEq)]
@@ -51,6 +57,10 @@ pub struct Checkpoint {
     pub velocities: Vec<Vector3<f64>>,
     /// With bending plasticity: the rest angles θ̄ and accumulated plastic angles α (rad, hinge order).
     pub plastic: Option<(Vec<f64>, Vec<f64>)>,
+    /// The obstacles (indices in the scene's list) that no longer warn of vertices inside them: their
+    /// warning was given before the checkpoint (or they never warn, as barriers): a resumed run does not
+    /// give it again.
+    pub warned_obstacles: Vec<usize>,
 }
 
 impl Checkpoint {
@@ -67,6 +77,11 @@ impl Checkpoint {
         s.push_str(&format!("time {:e}\n", self.time));
         s.push_str(&format!("dt {:e}\n", self.dt));
         s.push_str(&format!("shift_memory {:e}\n", self.shift_memory));
+        s.push_str("warned_obstacles");
+        for i in &self.warned_obstacles {
+            s.push_str(&format!(" {i}"));
+        }
+        s.push('\n');
         s.push_str(&format!("vertices {}\n", self.positions.len()));
         let plastic = self.plastic.as_ref().map_or(0, |(t, _)| t.len());
         s.push_str(&format!("plastic_hinges {plastic}\n"));
@@ -85,11 +100,20 @@ impl Checkpoint {
     }
 
     /// An upper bound on the size in bytes of [`Checkpoint::to_text`] for `n_vertices` vertices,
-    /// `plastic_hinges` hinges with a plastic state and a scene named `scene`: every number takes at most
-    /// 24 characters (a sign, 17 significant digits, a point and a three-digit exponent), so a vertex line
-    /// 150 bytes and a hinge line 50, and the header lines at most 256 beside the scene's name.
-    pub fn max_bytes(n_vertices: usize, plastic_hinges: usize, scene: &str) -> u64 {
-        256 + scene.len() as u64 + 150 * n_vertices as u64 + 50 * plastic_hinges as u64
+    /// `plastic_hinges` hinges with a plastic state, `obstacles` obstacles and a scene named `scene`: every
+    /// number takes at most 24 characters (a sign, 17 significant digits, a point and a three-digit
+    /// exponent), so a vertex line 150 bytes and a hinge line 50, an obstacle index 21, and the header lines
+    /// at most 256 beside the scene's name.
+    pub fn max_bytes(
+        n_vertices: usize,
+        plastic_hinges: usize,
+        obstacles: usize,
+        scene: &str,
+    ) -> u64 {
+        256 + scene.len() as u64
+            + 150 * n_vertices as u64
+            + 50 * plastic_hinges as u64
+            + 21 * obstacles as u64
     }
 
     /// Writes the file (to a temporary file beside it, then renamed: a run stopped while writing leaves
@@ -126,12 +150,13 @@ impl Checkpoint {
             lines.next().ok_or_else(|| format!("ends before {what}"))
         };
         let (n, header) = next("its header")?;
-        if header != HEADER {
+        if header != HEADER && header != HEADER_1 {
             return Err(format!(
                 "line {n}: not a hinge checkpoint (expected `{HEADER}`, found `{}`)",
                 shorten(header)
             ));
         }
+        let version_1 = header == HEADER_1;
         let mut item = |key: &str| -> Result<(usize, String), String> {
             let (n, line) = next(&format!("`{key}`"))?;
             match line.split_once(' ') {
@@ -165,6 +190,18 @@ impl Checkpoint {
             return Err(format!(
                 "line {n_shift}: shift_memory must be non-negative, got {shift_memory:e}"
             ));
+        }
+        let mut warned_obstacles = Vec::new();
+        if !version_1 {
+            let (n, value) = item("warned_obstacles")?;
+            for w in value.split_whitespace() {
+                warned_obstacles.push(w.parse::<usize>().map_err(|_| {
+                    format!(
+                        "line {n}: warned_obstacles `{}` is not an index",
+                        shorten(w)
+                    )
+                })?);
+            }
         }
         let vertices = count(item("vertices")?, "vertices")?;
         let hinges = count(item("plastic_hinges")?, "plastic_hinges")?;
@@ -212,6 +249,7 @@ impl Checkpoint {
             positions,
             velocities,
             plastic,
+            warned_obstacles,
         })
     }
 }
@@ -257,7 +295,7 @@ mod tests {
     fn the_size_bound_holds_for_the_longest_numbers() {
         let long = -2.2250738585072014e-308_f64;
         let longest = |n: usize| vec![Vector3::new(long, long, long); n];
-        for (n, h) in [(0, 0), (1, 0), (3, 5), (1000, 2900)] {
+        for (n, h, o) in [(0, 0, 0), (1, 0, 1), (3, 5, 2), (1000, 2900, 40)] {
             let c = Checkpoint {
                 scene: "a scene".into(),
                 frame: usize::MAX,
@@ -267,10 +305,11 @@ mod tests {
                 positions: longest(n),
                 velocities: longest(n),
                 plastic: (h > 0).then(|| (vec![long; h], vec![long; h])),
+                warned_obstacles: vec![usize::MAX; o],
             };
             assert_eq!(format!("{long:e}").len(), 24);
             let len = c.to_text().len() as u64;
-            let bound = Checkpoint::max_bytes(n, h, &c.scene);
+            let bound = Checkpoint::max_bytes(n, h, o, &c.scene);
             assert!(len <= bound, "{n} vertices, {h} hinges: {len} > {bound}");
             assert!(
                 bound - len <= 256,
@@ -296,7 +335,31 @@ mod tests {
                 Vector3::new(2.0f64.sqrt(), -7.0, 1.0 / 3.0),
             ],
             plastic: plastic.then(|| (vec![0.25, -3.0], vec![0.0, 1.0 / 7.0])),
+            warned_obstacles: if plastic { vec![0, 3] } else { Vec::new() },
         }
+    }
+
+    /// A version-1 file (no `warned_obstacles` line) reads as a checkpoint with none.
+    #[test]
+    fn version_1_checkpoints_are_read() {
+        let c = sample(true);
+        let text = c.to_text();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], HEADER);
+        assert_eq!(lines[6], "warned_obstacles 0 3");
+        let old: String = std::iter::once(HEADER_1)
+            .chain(lines[1..6].iter().copied())
+            .chain(lines[7..].iter().copied())
+            .map(|l| format!("{l}\n"))
+            .collect();
+        let back = Checkpoint::parse(&old).unwrap();
+        assert_eq!(
+            back,
+            Checkpoint {
+                warned_obstacles: Vec::new(),
+                ..c
+            }
+        );
     }
 
     #[test]
@@ -348,32 +411,40 @@ mod tests {
                 "line 6: expected `shift_memory …`, found `shift 1`",
             ),
             (
-                replace_line(9, "1 2 3 4 5"),
-                "line 9 (vertex 0): expected 6 numbers, found 5",
+                replace_line(7, "warned_obstacles 0 -1"),
+                "line 7: warned_obstacles `-1` is not an index",
             ),
             (
-                replace_line(10, "1 2 3 4 inf 6"),
-                "line 10 (vertex 1): number 5 is not finite (inf)",
+                replace_line(7, "vertices 2"),
+                "line 7: expected `warned_obstacles …`, found `vertices 2`",
             ),
             (
-                replace_line(11, "0.1 x"),
-                "line 11 (hinge 0): number 2 `x` is not a number",
+                replace_line(10, "1 2 3 4 5"),
+                "line 10 (vertex 0): expected 6 numbers, found 5",
             ),
             (
-                replace_line(12, "0.1 -0.5"),
-                "line 12 (hinge 1): the accumulated plastic angle",
+                replace_line(11, "1 2 3 4 inf 6"),
+                "line 11 (vertex 1): number 5 is not finite (inf)",
             ),
             (
-                good.lines().take(11).collect::<Vec<_>>().join("\n"),
+                replace_line(12, "0.1 x"),
+                "line 12 (hinge 0): number 2 `x` is not a number",
+            ),
+            (
+                replace_line(13, "0.1 -0.5"),
+                "line 13 (hinge 1): the accumulated plastic angle",
+            ),
+            (
+                good.lines().take(12).collect::<Vec<_>>().join("\n"),
                 "ends before hinge 1 (of 2)",
             ),
             (
                 format!("{good}1 2\n"),
-                "line 13: more lines than its 2 vertices and 2 plastic",
+                "line 14: more lines than its 2 vertices and 2 plastic",
             ),
             (
-                replace_line(7, "vertices 18446744073709551615"),
-                "line 11 (vertex 2): expected 6 numbers, found 2",
+                replace_line(8, "vertices 18446744073709551615"),
+                "line 12 (vertex 2): expected 6 numbers, found 2",
             ),
         ];
         for (text, expected) in cases {

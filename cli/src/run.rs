@@ -586,7 +586,7 @@ pub fn equilibrium_observed(
         scene,
         &obstacles,
         rest,
-        (rest.positions(), 0.0),
+        (rest.positions(), 0.0, &[]),
         names,
         warn.as_deref_mut(),
     );
@@ -1040,13 +1040,14 @@ impl<'a> ContactWatch<'a> {
     /// deepest and by how much). A penalty contact pushes them out at once, with a force of its stiffness
     /// times that depth (the cloth is thrown off). Depths below that are not warned of: a cloth laid on a
     /// floor whose height is computed differently from the cloth's lies a rounding error inside it. An
-    /// obstacle that warned here does not warn again. `(x0, t0)`: the run's start state and its time (the
-    /// rest state at 0, or a checkpoint's), with the obstacles placed at `t0`.
+    /// obstacle that warned here does not warn again, nor does one listed in `warned` (a checkpoint's
+    /// [`Checkpoint::warned_obstacles`]: it warned before the run was resumed). `(x0, t0)`: the run's start
+    /// state and its time (the rest state at 0, or a checkpoint's), with the obstacles placed at `t0`.
     fn start(
         scene: &Scene,
         obstacles: &[(Obstacle, Option<Motion>)],
         rest: &TriMesh,
-        (x0, t0): (&[Vector3<f64>], f64),
+        (x0, t0, warned): (&[Vector3<f64>], f64, &[usize]),
         names: Option<&'a FileNumbering>,
         mut warn: Option<&mut (dyn FnMut(&str) + '_)>,
     ) -> Self {
@@ -1058,7 +1059,7 @@ impl<'a> ContactWatch<'a> {
                     scene
                         .obstacles
                         .get(i)
-                        .filter(|o| o.model != "barrier")
+                        .filter(|o| o.model != "barrier" && !warned.contains(&i))
                         .map(|o| (o.stiffness, o.margin))
                 })
                 .collect(),
@@ -1107,6 +1108,14 @@ impl<'a> ContactWatch<'a> {
     fn vertex(&self, v: usize) -> String {
         self.names
             .map_or_else(|| v.to_string(), |n| n.vertex_number(v))
+    }
+
+    /// The obstacles that no longer warn (they warned, or never do): a checkpoint's
+    /// [`Checkpoint::warned_obstacles`].
+    fn silent(&self) -> Vec<usize> {
+        (0..self.pending.len())
+            .filter(|&i| self.pending[i].is_none())
+            .collect()
     }
 
     /// Whether a penalty sphere that has not warned yet is watched (its paths need the last positions).
@@ -1578,11 +1587,12 @@ pub fn simulate_observed(
     .map_err(|e| format!("frame {first_frame}: {e}"))?;
     check_initial_state(&mut system, &x, names)?;
     // After the check: a state the energies refuse is the one line, without a warning before it.
+    let warned = resume.map_or(&[][..], |c| &c.warned_obstacles[..]);
     let mut watch = ContactWatch::start(
         scene,
         &obstacles,
         rest,
-        (&x, t_start),
+        (&x, t_start, warned),
         names,
         warn.as_deref_mut(),
     );
@@ -1590,7 +1600,8 @@ pub fn simulate_observed(
                 x: &[Vector3<f64>],
                 v: &[Vector3<f64>],
                 stepper: &Stepper,
-                system: &System|
+                system: &System,
+                watch: &ContactWatch|
      -> Result<(), String> {
         let Some(path) = checkpoint else {
             return Ok(());
@@ -1609,6 +1620,7 @@ pub fn simulate_observed(
             plastic: system
                 .plastic_state()
                 .map(|(t, a)| (t.to_vec(), a.to_vec())),
+            warned_obstacles: watch.silent(),
         }
         .write(path)
     };
@@ -1719,7 +1731,7 @@ pub fn simulate_observed(
             }
             Err(e) => {
                 // The state is the last good frame's: a checkpoint to resume from.
-                let saved = match save(frame, &x, &v, &stepper, &system) {
+                let saved = match save(frame, &x, &v, &stepper, &system, &watch) {
                     Ok(()) => checkpoint.map_or(String::new(), |p| {
                         format!("; frame {frame} is in {} for --resume", p.display())
                     }),
@@ -1766,7 +1778,7 @@ pub fn simulate_observed(
         write_frame(frame + 1, &x, last)?;
         write_rest_angles(frame + 1, &system)?;
         if checkpoint_every > 0 && (frame + 1).is_multiple_of(checkpoint_every) && !last {
-            save(frame + 1, &x, &v, &stepper, &system)?;
+            save(frame + 1, &x, &v, &stepper, &system, &watch)?;
         }
         summary.max_plastic_angle = system.max_plastic_angle();
         let substeps = path
@@ -1789,7 +1801,7 @@ pub fn simulate_observed(
     }
     // The last frame done (all of them, or where Ctrl-C stopped the run): `x`, `v` and the system are its.
     let last_frame = first_frame + summary.frames;
-    save(last_frame, &x, &v, &stepper, &system)?;
+    save(last_frame, &x, &v, &stepper, &system, &watch)?;
     if let Some(o) = out.filter(|o| o.pictures) {
         write_pictures(
             o.dir,
@@ -1984,7 +1996,12 @@ pub fn run(args: RunArgs) -> Result<Completion, String> {
     }
     if !args.statics {
         bytes = bytes.saturating_add(
-            2 * Checkpoint::max_bytes(rest.n_vertices(), plastic_hinges, &scene.name),
+            2 * Checkpoint::max_bytes(
+                rest.n_vertices(),
+                plastic_hinges,
+                scene.obstacles.len(),
+                &scene.name,
+            ),
         );
         parts.push("a checkpoint and its replacement".to_string());
     }
@@ -2541,7 +2558,8 @@ mod path_tests {
         let lines = std::cell::RefCell::new(Vec::<String>::new());
         let mut warn = |l: &str| lines.borrow_mut().push(l.to_string());
         // Frame ends only (one substep): nothing.
-        let mut watch = ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0), None, None);
+        let mut watch =
+            ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0, &[]), None, None);
         watch.check(
             &obstacles,
             dt,
@@ -2551,7 +2569,8 @@ mod path_tests {
         );
         assert!(lines.borrow().is_empty(), "{lines:?}");
         // Through the substep: one line naming the centre vertex, 0 m from the centre.
-        let mut watch = ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0), None, None);
+        let mut watch =
+            ContactWatch::start(&scene, &obstacles, &rest, (&start, 0.0, &[]), None, None);
         let substeps = [(mid.clone(), 0.5 * dt), (end.clone(), dt)];
         watch.check(&obstacles, dt, (&end, &substeps), Some(1), Some(&mut warn));
         let lines = lines.borrow();

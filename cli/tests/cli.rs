@@ -4517,6 +4517,50 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     );
     let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
     assert!(summary.contains("\"frames\": 20"), "{summary}");
+    // Stopped after frame 10 (the warning given) and resumed to 20: the resumed run does not warn again,
+    // neither of the vertices it starts with inside the sphere nor of those let through later (the
+    // checkpoint lists the obstacle as warned).
+    let (ok, err) = run(&soft, &["--frames", "10"]);
+    assert!(ok && err.lines().count() == 1, "{err}");
+    let text = std::fs::read_to_string(out.join("checkpoint.txt")).unwrap();
+    assert!(text.lines().any(|l| l == "warned_obstacles 0"), "{text}");
+    let resumed = dir.join("resumed");
+    let checkpoint = out.join("checkpoint.txt");
+    let (ok, err) = success_and_stderr(&[
+        "run",
+        soft.to_str().unwrap(),
+        "--resolution",
+        "6",
+        "--no-frames",
+        "--frames",
+        "20",
+        "--resume",
+        checkpoint.to_str().unwrap(),
+        "--out",
+        resumed.to_str().unwrap(),
+    ]);
+    assert_eq!((ok, err.as_str()), (true, ""));
+    // Without the list (a checkpoint that has not warned yet), the resumed run warns of the vertices it
+    // starts with inside the sphere.
+    std::fs::write(
+        &checkpoint,
+        text.replace("warned_obstacles 0", "warned_obstacles"),
+    )
+    .unwrap();
+    let (ok, err) = success_and_stderr(&[
+        "run",
+        soft.to_str().unwrap(),
+        "--resolution",
+        "6",
+        "--no-frames",
+        "--frames",
+        "20",
+        "--resume",
+        checkpoint.to_str().unwrap(),
+        "--out",
+        resumed.to_str().unwrap(),
+    ]);
+    assert!(ok && err.contains("vertices start more than"), "{err}");
     // The same cloth resting statically on a plane of 0.01 N/m: each vertex weighs 2e-3 × 9.81 N and sinks
     // until the penalty carries it, about 2 m, far below the surface.
     let plane = scene_variant(
@@ -5209,7 +5253,7 @@ fn a_run_resumes_from_its_checkpoint_bitwise() {
         (
             vec!["drape", "--resolution", "8", "--resume", damaged.to_str().unwrap()],
             format!(
-                "--resume: {}: line 11 (vertex 2): expected 6 numbers, found 5",
+                "--resume: {}: line 11 (vertex 1): expected 6 numbers, found 5",
                 damaged.display()
             ),
         ),

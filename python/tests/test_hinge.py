@@ -1686,8 +1686,9 @@ def test_run_scene_resumes_from_its_checkpoint_bitwise(tmp_path):
     assert (tmp_path / "resumed.txt").read_text() == (tmp_path / "full.txt").read_text()
     # The checkpoint's header and positions: frame 7, the last frame's positions exactly.
     lines = (tmp_path / "c7.txt").read_text().splitlines()
-    assert lines[0] == "hinge checkpoint 1" and lines[2] == "frame 7"
-    first = [float(t) for t in lines[8].split()]
+    assert lines[0] == "hinge checkpoint 2" and lines[2] == "frame 7"
+    assert lines[6].startswith("warned_obstacles")
+    first = [float(t) for t in lines[9].split()]
     assert first[:3] == list(X[6, 0])
     # Checkpoints that do not fit, damaged ones and bad arguments raise ValueError.
     with pytest.raises(ValueError, match="the checkpoint has 961 vertices, the scene's mesh"):
@@ -1695,8 +1696,8 @@ def test_run_scene_resumes_from_its_checkpoint_bitwise(tmp_path):
     with pytest.raises(ValueError, match="at frame 16 and the scene has 16 frames"):
         hinge.run_scene("drape", frames=16, resume=tmp_path / "full.txt")
     bad = tmp_path / "bad.txt"
-    bad.write_text("\n".join(lines[:8] + ["1 2 3"] + lines[9:]))
-    with pytest.raises(ValueError, match="line 9 \\(vertex 0\\): expected 6 numbers, found 3"):
+    bad.write_text("\n".join(lines[:9] + ["1 2 3"] + lines[10:]))
+    with pytest.raises(ValueError, match="line 10 \\(vertex 0\\): expected 6 numbers, found 3"):
         hinge.run_scene("drape", frames=16, resume=bad)
     with pytest.raises(ValueError, match="resume: "):
         hinge.run_scene("drape", frames=16, resume=tmp_path / "missing.txt")
