@@ -4526,19 +4526,22 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
     assert!(text.lines().any(|l| l == "warned_obstacles 0"), "{text}");
     let resumed = dir.join("resumed");
     let checkpoint = out.join("checkpoint.txt");
-    let (ok, err) = success_and_stderr(&[
-        "run",
-        soft.to_str().unwrap(),
-        "--resolution",
-        "6",
-        "--no-frames",
-        "--frames",
-        "20",
-        "--resume",
-        checkpoint.to_str().unwrap(),
-        "--out",
-        resumed.to_str().unwrap(),
-    ]);
+    let resume = || {
+        success_and_stderr(&[
+            "run",
+            soft.to_str().unwrap(),
+            "--resolution",
+            "6",
+            "--no-frames",
+            "--frames",
+            "20",
+            "--resume",
+            checkpoint.to_str().unwrap(),
+            "--out",
+            resumed.to_str().unwrap(),
+        ])
+    };
+    let (ok, err) = resume();
     assert_eq!((ok, err.as_str()), (true, ""));
     // Without the list (a checkpoint that has not warned yet), the resumed run warns of the vertices it
     // starts with inside the sphere.
@@ -4547,19 +4550,7 @@ fn a_penalty_contact_that_lets_vertices_through_is_warned_of_once() {
         text.replace("warned_obstacles 0", "warned_obstacles"),
     )
     .unwrap();
-    let (ok, err) = success_and_stderr(&[
-        "run",
-        soft.to_str().unwrap(),
-        "--resolution",
-        "6",
-        "--no-frames",
-        "--frames",
-        "20",
-        "--resume",
-        checkpoint.to_str().unwrap(),
-        "--out",
-        resumed.to_str().unwrap(),
-    ]);
+    let (ok, err) = resume();
     assert!(ok && err.contains("vertices start more than"), "{err}");
     // The same cloth resting statically on a plane of 0.01 N/m: each vertex weighs 2e-3 × 9.81 N and sinks
     // until the penalty carries it, about 2 m, far below the surface.
