@@ -3426,35 +3426,14 @@ fn fit_recovers_keys_from_static_shapes() {
         count("without_effect"),
         count("determined"),
     );
-    let text = std::fs::read_to_string(&target).unwrap();
-    let xs: Vec<f64> = text
-        .lines()
-        .filter_map(|l| l.strip_prefix("v "))
-        .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
-        .collect();
-    let spacing = 0.3 / 60.0; // beam3: cells = [60, 5]
+    let mesh = hinge_core::meshio::read_mesh(&target).unwrap().mesh;
     assert!(scene_text.contains("cells = [60, 5]"));
-    let faces: Vec<Vec<usize>> = text
-        .lines()
-        .filter_map(|l| l.strip_prefix("f "))
-        .map(|l| {
-            l.split_whitespace()
-                .map(|v| v.split('/').next().unwrap().parse::<usize>().unwrap() - 1)
-                .collect()
-        })
-        .collect();
-    let mut edge_faces = std::collections::HashMap::<(usize, usize), Vec<usize>>::new();
-    for (k, f) in faces.iter().enumerate() {
-        for i in 0..3 {
-            let (a, b) = (f[i], f[(i + 1) % 3]);
-            edge_faces.entry((a.min(b), a.max(b))).or_default().push(k);
-        }
-    }
-    let clamped = |v: usize| xs[v] <= 1.01 * spacing;
-    let hinges: Vec<&Vec<usize>> = edge_faces.values().filter(|f| f.len() == 2).collect();
+    let spacing = 0.3 / 60.0; // beam3: cells = [60, 5]
+    let clamped = |v: usize| mesh.positions()[v].x <= 1.01 * spacing;
+    let hinges = hinge_core::topology::hinges(&mesh).unwrap();
     let inside = hinges
         .iter()
-        .filter(|f| f.iter().all(|&k| faces[k].iter().all(|&v| clamped(v))))
+        .filter(|h| h.vertices.iter().all(|&v| clamped(v)))
         .count();
     println!(
         "beam3 rest angles: {entries} values, {without} move nothing ({inside} hinges inside the clamp), \
